@@ -1,0 +1,15 @@
+"""smol-dsl: developmental curricula (actuator-scaling schedules) for quality-diversity robotics.
+
+>>> import smol_dsl
+>>> human = smol_dsl.load("human")          # the bundled SMOL-Human curriculum
+>>> alphas = human.phase_alphas(100, key=None)  # alpha for each of 100 phases
+"""
+
+from smol_dsl.errors import ScheduleError
+from smol_dsl.resources import library_names
+from smol_dsl.schedule import Schedule, load, parse
+from smol_dsl.verify import Certificate
+
+__version__ = "0.1.0"
+
+__all__ = ["Certificate", "Schedule", "ScheduleError", "__version__", "library_names", "load", "parse"]

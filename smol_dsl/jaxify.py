@@ -1,0 +1,95 @@
+"""Exact sympy segment expressions -> jittable JAX functions of t.
+
+A small tree-walking translator over the node types the language can produce, so that the
+JAX function is built from the verified sympy object itself (no code generation, no eval).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax.numpy as jnp
+import sympy as sp
+
+from smol_dsl.symbolic import BellParams, T
+
+_UNARY: dict[type, Callable[[jnp.ndarray], jnp.ndarray]] = {
+    sp.exp: jnp.exp,
+    sp.log: jnp.log,
+    sp.sin: jnp.sin,
+    sp.cos: jnp.cos,
+    sp.tanh: jnp.tanh,
+    sp.Abs: jnp.abs,
+    sp.floor: jnp.floor,
+}
+
+
+def to_jax(expr: sp.Expr) -> Callable[[jnp.ndarray], jnp.ndarray]:
+    """Return f(t) evaluating `expr` (a sympy expression in T) with jax.numpy."""
+
+    def evaluate(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+        if node == T:
+            return t
+        if node.is_Number or node.is_NumberSymbol or (node.is_number and not node.free_symbols):
+            return jnp.asarray(float(sp.N(node, 20)), dtype=t.dtype)
+        if node.is_Add:
+            total = evaluate(node.args[0], t)
+            for arg in node.args[1:]:
+                total = total + evaluate(arg, t)
+            return total
+        if node.is_Mul:
+            product = evaluate(node.args[0], t)
+            for arg in node.args[1:]:
+                product = product * evaluate(arg, t)
+            return product
+        if node.is_Pow:
+            base, exponent = node.args
+            if exponent == sp.Rational(1, 2):
+                return jnp.sqrt(evaluate(base, t))
+            if exponent.is_Integer and abs(int(exponent)) <= 64:
+                return jnp.power(evaluate(base, t), int(exponent))
+            return jnp.power(evaluate(base, t), evaluate(exponent, t))
+        if isinstance(node, sp.Min):
+            return _fold(jnp.minimum, [evaluate(a, t) for a in node.args])
+        if isinstance(node, sp.Max):
+            return _fold(jnp.maximum, [evaluate(a, t) for a in node.args])
+        if type(node) in _UNARY:
+            return _UNARY[type(node)](evaluate(node.args[0], t))
+        raise TypeError(f"cannot translate {node!r} ({type(node).__name__}) to JAX")
+
+    def function(t: jnp.ndarray) -> jnp.ndarray:
+        return evaluate(expr, t)
+
+    return function
+
+
+def _fold(op: Callable[[jnp.ndarray, jnp.ndarray], jnp.ndarray], values: list[jnp.ndarray]) -> jnp.ndarray:
+    result = values[0]
+    for value in values[1:]:
+        result = op(result, value)
+    return result
+
+
+def bell(params: BellParams, segment_start: float, segment_end: float) -> Callable[[jnp.ndarray], jnp.ndarray]:
+    """f(t) for a bell segment on [start, end], careful at very wide and very narrow widths."""
+    start_value, peak, end_value = float(params.start), float(params.peak), float(params.end)
+    peak_at, width = float(params.peak_at), float(params.width)
+
+    def function(t: jnp.ndarray) -> jnp.ndarray:
+        rising = t < peak_at
+        edge = jnp.where(rising, segment_start, segment_end)
+        base = jnp.where(rising, start_value, end_value)
+        scale = 1.0 / (2.0 * width**2)
+        at_edge = scale * (edge - peak_at) ** 2  # -log G(edge)
+        at_t = scale * (t - peak_at) ** 2  # -log G(t)
+        # (G(t) - G(edge)) / (1 - G(edge)), in two forms: direct when G(edge) is small,
+        # with expm1 when G(edge) is close to 1 (a wide bell) to avoid cancellation.
+        direct = (jnp.exp(-at_t) - jnp.exp(-at_edge)) / (1.0 - jnp.exp(-at_edge))
+        gentle_edge = jnp.minimum(at_edge, 1.0)
+        careful = jnp.exp(-gentle_edge) * jnp.expm1(gentle_edge - jnp.minimum(at_t, gentle_edge)) / -jnp.expm1(
+            -gentle_edge
+        )
+        shape = jnp.where(at_edge > 1.0, direct, careful)
+        return base + (peak - base) * shape
+
+    return function

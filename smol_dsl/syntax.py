@@ -1,0 +1,378 @@
+"""Text -> typed syntax tree: the Lark parser, its Transformer, and friendly syntax errors."""
+
+from __future__ import annotations
+
+import difflib
+import re
+from fractions import Fraction
+from functools import lru_cache
+from typing import Any
+
+from lark import Lark, Token, Transformer, v_args
+from lark.exceptions import (
+    UnexpectedCharacters,
+    UnexpectedEOF,
+    UnexpectedInput,
+    UnexpectedToken,
+    VisitError,
+)
+
+from smol_dsl import ast
+from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.resources import grammar_path
+
+MAX_SOURCE_CHARS = 1_000_000
+MAX_EXPONENT_DIGITS = 400  # literals beyond 1e±400 are out of float64 range anyway
+SEGMENT_KINDS = ("constant", "linear", "bell", "random", "expr", "tail")
+
+# Hints for common mistakes, found by Lark's example matching: each hint lists a few
+# wrong lines that fail the same way.
+_EXAMPLE_HINTS: dict[str, list[str]] = {
+    "a segment is written `START .. END: SHAPE`, e.g. `0% .. 90%: linear 1.5 -> 1`": [
+        "0% .. 90% linear 1 -> 2",
+        "0% .. 90% constant 1",
+        "0% .. 90% tail",
+    ],
+    "write a range of the run as `START .. END`, e.g. `0% .. 90%`": [
+        "0% - 90%: tail",
+        "0% 90%: tail",
+        "0% to 90%: tail",
+    ],
+    "`linear` takes two values joined by `->`, e.g. `linear 1.5 -> 1`": [
+        "0% .. 90%: linear 1 2",
+        "0% .. 90%: linear 1 to 2",
+        "0% .. 90%: linear 1 .. 2",
+    ],
+    "`bell` is written `bell START -> PEAK at POSITION -> END [width WIDTH]`, "
+    "e.g. `bell 0.7 -> 1.4 at 30% -> 1 width 12%`": [
+        "0% .. 90%: bell 1 -> 2 -> 1",
+        "0% .. 90%: bell 1 2 0.5 1",
+        "0% .. 90%: bell 1 -> 2 at 50%",
+        "0% .. 90%: bell 1 -> 2 at 50% 1",
+    ],
+    "`random` is written `random LOW .. HIGH [every STEP]`, e.g. `random 0.5 .. 1.5 every 1%`": [
+        "0% .. 90%: random 1 2",
+        "0% .. 90%: random 1 -> 2",
+        "0% .. 90%: random 1 .. 2 every",
+    ],
+    "a range is written `LOW .. HIGH`, e.g. `bounds 0.5 .. 1.5`": [
+        "bounds 1 2",
+        "bounds 1 -> 2",
+    ],
+    "`let` binds a name to a constant, e.g. `let peak = 1.4`": [
+        "let peak 1.4",
+        "let = 1.4",
+        "let 1 = 2",
+    ],
+    "strings are written in double quotes, e.g. `name \"SMOL\"`": [
+        "name SMOL",
+        "description hello",
+    ],
+    "the segment kinds are " + ", ".join(SEGMENT_KINDS): [
+        "0% .. 90%: 1",
+        "0% .. 90%: step 1",
+        "0% .. 90%: lineal 1 -> 2",
+    ],
+    "one statement per line; a segment may be followed only by `increasing` or `decreasing`": [
+        "0% .. 90%: constant 1 0% .. 100%: tail",
+        "0% .. 90%: linear 1 -> 2 monotone",
+        "0% .. 90%: tail tail",
+    ],
+}
+
+_TERMINAL_WORDS = {
+    "NUMBER": "a number",
+    "NAME": "a name",
+    "STRING": 'a "quoted string"',
+    "_NL": "the end of the line",
+    "$END": "the end of the file",
+    "MONOTONE": "`increasing` or `decreasing`",
+}
+
+
+@lru_cache(maxsize=1)
+def _parser() -> Lark:
+    return Lark(
+        grammar_path().read_text(encoding="utf-8"),
+        parser="lalr",
+        propagate_positions=True,
+        maybe_placeholders=True,
+    )
+
+
+def _span_of_token(token: Token) -> Span:
+    return Span(token.line or 1, token.column or 1, max(1, len(str(token))))
+
+
+def _span_of_meta(meta: Any) -> Span:
+    if getattr(meta, "empty", True):
+        return Span(1, 1)
+    if meta.line == meta.end_line:
+        length = meta.end_column - meta.column
+    else:
+        length = 1 << 16  # runs to the end of the line; the excerpt clips it
+    return Span(meta.line, meta.column, max(1, length))
+
+
+def _number(token: Token) -> ast.Number:
+    text = str(token)
+    span = _span_of_token(token)
+    mantissa, _, exponent = text.lower().partition("e")
+    if exponent and abs(int(exponent)) > MAX_EXPONENT_DIGITS:
+        raise ScheduleError(
+            f"number {text} is out of range",
+            span=span,
+            hint="numbers must fit a 64-bit float (about 1e-308 to 1e308); alpha is a modest factor like 1.5",
+        )
+    value = Fraction(text)
+    if value > Fraction(10) ** 308:
+        raise ScheduleError(
+            f"number {text} is out of range",
+            span=span,
+            hint="numbers must fit a 64-bit float (at most about 1.8e308)",
+        )
+    del mantissa
+    return ast.Number(value, text, span)
+
+
+@v_args(meta=True)
+class _ToAst(Transformer):
+    """Turns Lark's parse tree into `smol_dsl.ast` nodes, one method per grammar rule."""
+
+    # expressions ------------------------------------------------------------
+    def number(self, meta: Any, children: list[Token]) -> ast.Number:
+        return _number(children[0])
+
+    def name(self, meta: Any, children: list[Token]) -> ast.Name:
+        return ast.Name(str(children[0]), _span_of_token(children[0]))
+
+    def call(self, meta: Any, children: list[Any]) -> ast.Call:
+        function, *args = children
+        return ast.Call(str(function), tuple(a for a in args if a is not None), _span_of_meta(meta))
+
+    def _binary(op: str):  # noqa: N805 - a method factory used at class creation
+        def build(self: _ToAst, meta: Any, children: list[Any]) -> ast.Binary:
+            return ast.Binary(op, children[0], children[1], _span_of_meta(meta))  # type: ignore[arg-type]
+
+        return build
+
+    add = _binary("+")
+    sub = _binary("-")
+    mul = _binary("*")
+    div = _binary("/")
+    pow = _binary("**")
+
+    def neg(self, meta: Any, children: list[Any]) -> ast.Unary:
+        return ast.Unary("-", children[0], _span_of_meta(meta))
+
+    def pos(self, meta: Any, children: list[Any]) -> ast.Unary:
+        return ast.Unary("+", children[0], _span_of_meta(meta))
+
+    def percent(self, meta: Any, children: list[Any]) -> ast.Unary:
+        return ast.Unary("%", children[0], _span_of_meta(meta))
+
+    # shapes -----------------------------------------------------------------
+    def constant(self, meta: Any, children: list[Any]) -> ast.Constant:
+        return ast.Constant(children[0])
+
+    def linear(self, meta: Any, children: list[Any]) -> ast.Linear:
+        return ast.Linear(children[0], children[1])
+
+    def bell(self, meta: Any, children: list[Any]) -> ast.Bell:
+        start, peak, peak_at, end, width = children
+        return ast.Bell(start, peak, peak_at, end, width)
+
+    def random(self, meta: Any, children: list[Any]) -> ast.Random:
+        low, high, every = children
+        return ast.Random(low, high, every)
+
+    def expression(self, meta: Any, children: list[Any]) -> ast.Expression:
+        return ast.Expression(children[0])
+
+    def tail(self, meta: Any, children: list[Any]) -> ast.Tail:
+        return ast.Tail()
+
+    # statements -------------------------------------------------------------
+    def segment(self, meta: Any, children: list[Any]) -> ast.Segment:
+        start, end, shape, monotone = children
+        span = _span_of_meta(meta)
+        return ast.Segment(
+            start=start,
+            end=end,
+            shape=shape,
+            monotone=str(monotone) if monotone is not None else None,  # type: ignore[arg-type]
+            span=span,
+            kind_span=span,
+        )
+
+    def name_decl(self, meta: Any, children: list[Token]) -> tuple[str, Any, Span]:
+        return ("name", str(children[0])[1:-1], _span_of_meta(meta))
+
+    def description_decl(self, meta: Any, children: list[Token]) -> tuple[str, Any, Span]:
+        return ("description", str(children[0])[1:-1], _span_of_meta(meta))
+
+    def let_decl(self, meta: Any, children: list[Any]) -> ast.Let:
+        return ast.Let(str(children[0]), children[1], _span_of_meta(meta))
+
+    def bounds_decl(self, meta: Any, children: list[Any]) -> ast.Bounds:
+        return ast.Bounds(children[0], children[1], _span_of_meta(meta))
+
+    def extinction_decl(self, meta: Any, children: list[Any]) -> ast.Extinction:
+        return ast.Extinction(children[0], _span_of_meta(meta))
+
+    def continuous_decl(self, meta: Any, children: list[Any]) -> tuple[str, Any, Span]:
+        return ("continuous", True, _span_of_meta(meta))
+
+    def start(self, meta: Any, children: list[Any]) -> ast.Program:
+        return _assemble(children)
+
+
+def _assemble(statements: list[Any]) -> ast.Program:
+    """Collect statements into a Program, rejecting repeated directives."""
+    fields: dict[str, Any] = {}
+    seen: dict[str, Span] = {}
+    lets: list[ast.Let] = []
+    segments: list[ast.Segment] = []
+
+    def once(key: str, span: Span, value: Any) -> None:
+        if key in seen:
+            raise ScheduleError(
+                f"`{key}` is given twice (first on line {seen[key].line})",
+                span=span,
+                hint=f"a schedule has at most one `{key}` line; delete one of them",
+            )
+        seen[key] = span
+        fields[key] = value
+
+    for statement in statements:
+        if statement is None:
+            continue
+        if isinstance(statement, ast.Segment):
+            segments.append(statement)
+        elif isinstance(statement, ast.Let):
+            lets.append(statement)
+        elif isinstance(statement, ast.Bounds):
+            once("bounds", statement.span, statement)
+        elif isinstance(statement, ast.Extinction):
+            once("extinction", statement.span, statement)
+        else:
+            key, value, span = statement
+            once(key, span, value)
+    return ast.Program(lets=tuple(lets), segments=tuple(segments), **fields)
+
+
+def _expected_in_words(expected: set[str]) -> str:
+    terminals = {t.name: t for t in _parser().terminals}
+    words = set()
+    for name in expected:
+        if name in _TERMINAL_WORDS:
+            words.add(_TERMINAL_WORDS[name])
+        elif name in terminals and terminals[name].pattern.type == "str":
+            words.add(f"`{terminals[name].pattern.value}`")
+        else:
+            words.add(name.lower())
+    ordered = sorted(words)
+    if len(ordered) > 8:
+        ordered = ordered[:8] + ["..."]
+    return ", ".join(ordered)
+
+
+def _example_hint(error: UnexpectedInput, text: str) -> str | None:
+    try:
+        return error.match_examples(_parser().parse, _EXAMPLE_HINTS, use_accepts=True)
+    except Exception:  # example matching is best effort; the expected-token hint stands
+        return None
+
+
+def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
+    line = getattr(error, "line", None) or 1
+    column = getattr(error, "column", None) or 1
+    if line < 1:  # Lark reports EOF errors at line -1
+        lines = text.splitlines() or [""]
+        line, column = len(lines), len(lines[-1]) + 1
+    example = _example_hint(error, text)
+    if isinstance(error, UnexpectedCharacters):
+        char = text[error.pos_in_stream] if error.pos_in_stream < len(text) else "?"
+        message = f"unexpected character {char!r}"
+        hint = example
+        if char == "^":
+            hint = "powers are written with `**`, e.g. `t**2`"
+        elif char in "[]{}":
+            hint = "group with round brackets `( )`"
+        elif char == "'":
+            hint = 'strings are written in double quotes, e.g. `name "SMOL"`'
+        if hint is None:
+            hint = f"expected {_expected_in_words(set(error.allowed or ()))}"
+        return ScheduleError(message, span=Span(line, column), hint=hint)
+    if isinstance(error, UnexpectedToken):
+        token = error.token
+        if token.type == "$END":
+            message = "unexpected end of file"
+        elif token.type == "_NL":
+            message = "unexpected end of line"
+        else:
+            message = f"unexpected {str(token)!r}"
+            if token.type == "NAME":
+                close = difflib.get_close_matches(str(token), SEGMENT_KINDS, n=1)
+                if close and (error.expected & {"CONSTANT", "LINEAR", "BELL", "RANDOM", "EXPR", "TAIL"}):
+                    example = f"did you mean `{close[0]}`? The segment kinds are " + ", ".join(SEGMENT_KINDS)
+        hint = example or f"expected {_expected_in_words(set(error.expected))}"
+        length = len(str(token)) if token.type not in {"$END", "_NL"} else 1
+        return ScheduleError(message, span=Span(line, column, max(1, length)), hint=hint)
+    if isinstance(error, UnexpectedEOF):
+        hint = example or f"expected {_expected_in_words(set(error.expected))}"
+        return ScheduleError("unexpected end of file", span=Span(line, column), hint=hint)
+    return ScheduleError(str(error), span=Span(line, column))
+
+
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+
+
+def check_text(text: str) -> None:
+    """Reject text that is not a plausible `.sched` file before parsing it."""
+    if len(text) > MAX_SOURCE_CHARS:
+        raise ScheduleError(
+            f"file is too large ({len(text)} characters)",
+            span=Span(1, 1),
+            hint=f"a schedule is a few lines; the limit is {MAX_SOURCE_CHARS} characters",
+        )
+    bad = _CONTROL.search(text)
+    if bad:
+        before = text[: bad.start()]
+        line = before.count("\n") + 1
+        column = bad.start() - (before.rfind("\n") + 1) + 1
+        raise ScheduleError(
+            f"control character {bad.group()!r} in the text",
+            span=Span(line, column),
+            hint="a .sched file is plain UTF-8 text; is this a binary file?",
+        )
+    if not text.strip() or all(
+        not line.split("#", 1)[0].strip() for line in text.splitlines()
+    ):
+        raise ScheduleError(
+            "empty schedule: the file has no statements",
+            span=Span(1, 1),
+            hint="a schedule needs segments covering 0%..100%, e.g.\n"
+            "    0% .. 90%: linear 1.5 -> 1\n    90% .. 100%: tail",
+        )
+
+
+def parse_program(text: str) -> ast.Program:
+    """Parse `.sched` text into a `Program`, or raise one `ScheduleError`."""
+    check_text(text)
+    try:
+        tree = _parser().parse(text)
+    except UnexpectedInput as error:
+        raise _syntax_error(error, text) from None
+    try:
+        return _ToAst().transform(tree)
+    except VisitError as error:
+        if isinstance(error.orig_exc, ScheduleError):
+            raise error.orig_exc from None
+        raise
+    except RecursionError:
+        raise ScheduleError(
+            "expression nested too deeply",
+            span=Span(1, 1),
+            hint="split it with `let` constants",
+        ) from None

@@ -1,0 +1,387 @@
+"""Symbolic verification of a schedule and the certificate it produces.
+
+Every check is done with exact sympy arithmetic over each piece's real interval: extrema
+from critical points (`sympy.calculus.util.minimum`/`maximum`), monotonicity from the sign
+of the derivative. Where sympy cannot find critical points, a rigorous interval enclosure
+(`AccumBounds` over sub-intervals) is used instead and the certificate says so. Nothing is
+sampled.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import threading
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import sympy as sp
+from sympy.calculus.util import maximum, minimum
+
+from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.symbolic import T, Piece, SymbolicProgram, SymbolicSegment, number_text, percent
+
+MIN_TAIL = sp.Rational(1, 10)
+"""The last 10% of the run must be at alpha = 1 (the paper's fair-comparison rule)."""
+FLOAT32_MAX = 3.4028234663852886e38
+SECONDS_PER_PIECE = 10.0
+ENCLOSURE_PIECES = 64
+
+Monotone = Literal["constant", "increasing", "decreasing", "random", "neither"]
+
+
+@dataclass(frozen=True)
+class PieceCertificate:
+    """What was proven about one smooth piece of alpha(t)."""
+
+    segment: int
+    kind: str
+    start: float
+    end: float
+    minimum: float
+    maximum: float
+    monotone: Monotone
+    exact: bool  # False when extrema come from an interval enclosure
+
+
+@dataclass(frozen=True)
+class JoinCertificate:
+    """Continuity where one segment meets the next."""
+
+    position: float
+    continuous: bool
+    jump: float | None  # None for a random segment (its value there is a random draw)
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """The result of verifying a schedule: bounds, tail, joins, and each piece."""
+
+    minimum: float
+    maximum: float
+    tail_start: float
+    joins: tuple[JoinCertificate, ...]
+    pieces: tuple[PieceCertificate, ...]
+    bounds: tuple[float, float] | None
+    extinction: float
+
+    @property
+    def tail_fraction(self) -> float:
+        return 1.0 - self.tail_start
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dictionary of the certificate."""
+        return asdict(self)
+
+    def __str__(self) -> str:
+        lines = [
+            f"  alpha in [{self.minimum:.6g}, {self.maximum:.6g}]   alpha > 0: proven"
+            + (f"   bounds {self.bounds[0]:.6g} .. {self.bounds[1]:.6g}: proven" if self.bounds else ""),
+            f"  tail: alpha == 1 from {percent(self.tail_start)} to 100% "
+            f"({percent(self.tail_fraction)} of the run, at least {percent(MIN_TAIL)} required): proven",
+            "  pieces:",
+        ]
+        for p in self.pieces:
+            extent = f"{percent(p.start)} .. {percent(p.end)}"
+            note = "" if p.exact else "  (interval enclosure)"
+            lines.append(
+                f"    #{p.segment:<2} {extent:<16} {p.kind:<11} alpha {p.minimum:.6g} .. {p.maximum:.6g}"
+                f"   {p.monotone}{note}"
+            )
+        if self.joins:
+            words = []
+            for j in self.joins:
+                if j.jump is None:
+                    words.append(f"{percent(j.position)} random")
+                elif j.continuous:
+                    words.append(f"{percent(j.position)} continuous")
+                else:
+                    words.append(f"{percent(j.position)} jump {j.jump:+.6g}")
+            lines.append("  joins: " + ", ".join(words))
+        lines.append(f"  extinction: {self.extinction:g}")
+        return "\n".join(lines)
+
+
+class _Timeout(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def _time_limit(seconds: float) -> Iterator[None]:
+    """Raise _Timeout after `seconds` (main thread only; elsewhere no limit)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
+        yield
+        return
+
+    def on_alarm(signum: int, frame: Any) -> None:
+        raise _Timeout
+
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _real(value: sp.Expr) -> float | None:
+    """A finite real float of an exact value, or None."""
+    if value is None or value.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.AccumBounds):
+        return None
+    try:
+        number = complex(sp.N(value, 30))
+    except (TypeError, ValueError):
+        return None
+    if not math.isfinite(number.real) or abs(number.imag) > 1e-30:
+        return None
+    return number.real
+
+
+def _enclosure(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[float, float] | None:
+    """Rigorous bounds of expr over [start, end] by interval arithmetic on sub-intervals."""
+    low, high = math.inf, -math.inf
+    edges = [start + (end - start) * sp.Rational(k, ENCLOSURE_PIECES) for k in range(ENCLOSURE_PIECES + 1)]
+    for a, b in zip(edges[:-1], edges[1:]):
+        value = expr.subs(T, sp.AccumBounds(a, b))
+        if isinstance(value, sp.AccumBounds):
+            lo, hi = _real(value.min), _real(value.max)
+        else:
+            lo = hi = _real(value)
+        if lo is None or hi is None:
+            return None
+        low, high = min(low, lo), max(high, hi)
+    return low, high
+
+
+def _extrema(piece: Piece) -> tuple[float, float, bool] | None:
+    """(min, max, exact) of a piece over its closed interval, or None if unbounded/unknown."""
+    interval = sp.Interval(piece.start, piece.end)
+    if not piece.expr.has(T):
+        value = _real(piece.expr)
+        return None if value is None else (value, value, True)
+    try:
+        low, high = _real(minimum(piece.expr, T, interval)), _real(maximum(piece.expr, T, interval))
+        if low is not None and high is not None:
+            return low, high, True
+    except (NotImplementedError, ValueError, TypeError, AttributeError):
+        pass
+    enclosed = _enclosure(piece.expr, piece.start, piece.end)
+    return None if enclosed is None else (*enclosed, False)
+
+
+def _sign_of_slope(piece: Piece) -> Monotone:
+    """The proven monotonicity of a piece."""
+    if not piece.expr.has(T):
+        return "constant"
+    slope = sp.diff(piece.expr, T)
+    if slope.is_zero or sp.simplify(slope) == 0:
+        return "constant"
+    interval = sp.Interval(piece.start, piece.end)
+    try:
+        if sp.is_increasing(piece.expr, interval, T):
+            return "increasing"
+        if sp.is_decreasing(piece.expr, interval, T):
+            return "decreasing"
+    except (NotImplementedError, ValueError, TypeError, AttributeError):
+        pass
+    enclosed = _enclosure(slope, piece.start, piece.end)
+    if enclosed is not None:
+        if enclosed[0] >= 0:
+            return "increasing"
+        if enclosed[1] <= 0:
+            return "decreasing"
+    return "neither"
+
+
+def _fail(message: str, span: Span, hint: str) -> ScheduleError:
+    return ScheduleError(message, span=span, hint=hint)
+
+
+def _check_coverage(segments: tuple[SymbolicSegment, ...]) -> None:
+    first = segments[0]
+    if first.start != 0:
+        raise _fail(
+            f"the segments leave 0% .. {percent(first.start)} uncovered",
+            first.span,
+            f"start the first segment at 0%, or add a segment `0% .. {percent(first.start)}: ...`",
+        )
+    for before, after in zip(segments[:-1], segments[1:]):
+        if after.start > before.end:
+            raise _fail(
+                f"gap between {percent(before.end)} and {percent(after.start)}",
+                after.span,
+                f"segment {before.index + 1} (line {before.span.line}) ends at {percent(before.end)} "
+                f"but segment {after.index + 1} starts at {percent(after.start)}; "
+                f"start it at {percent(before.end)}",
+            )
+        if after.start < before.end:
+            raise _fail(
+                f"overlap between {percent(after.start)} and {percent(min(before.end, after.end))}",
+                after.span,
+                f"segment {before.index + 1} (line {before.span.line}) runs to {percent(before.end)} "
+                f"but segment {after.index + 1} starts at {percent(after.start)}; "
+                f"segments must be in order and must not overlap",
+            )
+    last = segments[-1]
+    if last.end != 1:
+        raise _fail(
+            f"the segments leave {percent(last.end)} .. 100% uncovered",
+            last.span,
+            f"end the last segment at 100%, or add `{percent(last.end)} .. 100%: tail`",
+        )
+
+
+def _is_one(segment: SymbolicSegment) -> bool:
+    if segment.random is not None:
+        return bool(segment.random.low == 1 and segment.random.high == 1)
+    return all(sp.simplify(p.expr - 1) == 0 for p in segment.pieces)
+
+
+def tail_start(segments: tuple[SymbolicSegment, ...]) -> sp.Rational:
+    """Where alpha becomes identically 1 for good; raise if that leaves under MIN_TAIL."""
+    start = sp.Integer(1)
+    for segment in reversed(segments):
+        if not _is_one(segment):
+            break
+        start = segment.start
+    if 1 - start < MIN_TAIL:
+        last = segments[-1]
+        have = "no alpha = 1 tail" if start == 1 else f"alpha == 1 only from {percent(start)}"
+        raise _fail(
+            f"the schedule must end with alpha = 1 over at least the final {percent(MIN_TAIL)} of the run; "
+            f"it has {have}",
+            last.span,
+            "the paper compares every schedule on the same body at the end: "
+            f"finish with `{percent(1 - MIN_TAIL)} .. 100%: tail` (or any alpha == 1 segment starting "
+            f"at {percent(1 - MIN_TAIL)} or earlier)",
+        )
+    return start
+
+
+def _value_at(segment: SymbolicSegment, where: Literal["start", "end"]) -> sp.Expr:
+    piece = segment.pieces[0] if where == "start" else segment.pieces[-1]
+    return piece.expr.subs(T, segment.start if where == "start" else segment.end)
+
+
+def _joins(segments: tuple[SymbolicSegment, ...]) -> tuple[JoinCertificate, ...]:
+    joins = []
+    for before, after in zip(segments[:-1], segments[1:]):
+        if (before.random is not None and not _is_one(before)) or (after.random is not None and not _is_one(after)):
+            joins.append(JoinCertificate(float(after.start), False, None))
+            continue
+        jump = sp.simplify(_value_at(after, "start") - _value_at(before, "end"))
+        joins.append(JoinCertificate(float(after.start), bool(jump == 0), _real(jump) or 0.0))
+    return tuple(joins)
+
+
+def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
+    where = f"segment {segment.index + 1} ({segment.describe_range()}, {segment.kind})"
+    if segment.random is not None:
+        low, high = _real(segment.random.low), _real(segment.random.high)
+        assert low is not None and high is not None
+        return PieceCertificate(segment.index + 1, segment.kind, float(piece.start), float(piece.end),
+                                low, high, "constant" if low == high else "random", True)
+    try:
+        with _time_limit(SECONDS_PER_PIECE):
+            extrema = _extrema(piece)
+            monotone = _sign_of_slope(piece) if extrema is not None else "neither"
+    except _Timeout:
+        raise _fail(
+            f"could not verify {where} within {SECONDS_PER_PIECE:g} s",
+            segment.span,
+            "sympy could not bound this expression quickly; simplify it or split the segment",
+        ) from None
+    except RecursionError:
+        raise _fail(f"{where} is too deeply nested to verify", segment.span, "simplify the expression") from None
+    if extrema is None:
+        raise _fail(
+            f"alpha is not finite and real everywhere on {where}",
+            segment.span,
+            "check for a division by zero, or a log or square root of a negative number, inside the segment",
+        )
+    low, high, exact = extrema
+    return PieceCertificate(segment.index + 1, piece.label if segment.kind == "bell" else segment.kind,
+                            float(piece.start), float(piece.end), low, high, monotone, exact)
+
+
+def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: list[PieceCertificate]) -> None:
+    where = f"segment {segment.index + 1} ({segment.describe_range()}, {segment.kind})"
+    low = min(p.minimum for p in pieces)
+    high = max(p.maximum for p in pieces)
+    if not low > 0:
+        raise _fail(
+            f"alpha must stay above 0, but {where} goes down to {low:.6g}",
+            segment.span,
+            "alpha scales the actuators' gear; 0 or less would switch them off or reverse them",
+        )
+    if high > FLOAT32_MAX:
+        raise _fail(f"{where} reaches alpha = {high:.3g}, beyond float32", segment.span, "use a modest alpha")
+    if program.bounds is not None:
+        lo, hi, _ = program.bounds
+        lo_f, hi_f = float(lo), float(hi)
+        if low < lo_f:
+            raise _fail(
+                f"{where} goes down to alpha = {low:.6g}, {lo_f - low:.6g} below the declared bound {lo_f:.6g}",
+                segment.span,
+                f"raise the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`",
+            )
+        if high > hi_f:
+            raise _fail(
+                f"{where} reaches alpha = {high:.6g}, {high - hi_f:.6g} above the declared bound {hi_f:.6g}",
+                segment.span,
+                f"lower the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`",
+            )
+    if segment.monotone is not None:
+        allowed = {"constant", segment.monotone}
+        broken = [p for p in pieces if p.monotone not in allowed]
+        if broken:
+            first_value = _value_at(segment, "start")
+            last_value = _value_at(segment, "end")
+            if segment.random is not None:
+                detail = "a random segment is not monotone"
+            else:
+                detail = (
+                    f"alpha goes from {number_text(first_value)} at {percent(segment.start)} to "
+                    f"{number_text(last_value)} at {percent(segment.end)}, ranging over "
+                    f"{low:.6g} .. {high:.6g}"
+                )
+            raise _fail(
+                f"{where} is declared {segment.monotone} but is not: {detail}",
+                segment.span,
+                f"fix the values, or remove `{segment.monotone}` if the shape is intended",
+            )
+
+
+def verify(program: SymbolicProgram) -> Certificate:
+    """Prove the language's rules for a compiled program; raise ScheduleError on the first failure."""
+    segments = program.segments
+    _check_coverage(segments)
+    pieces: list[PieceCertificate] = []
+    for segment in segments:
+        own = [_verify_piece(segment, piece) for piece in segment.pieces]
+        _check_rules(program, segment, own)
+        pieces.extend(own)
+    start_of_tail = tail_start(segments)
+    joins = _joins(segments)
+    if program.continuous:
+        for join, after in zip(joins, segments[1:]):
+            if not join.continuous:
+                jump = "a random value" if join.jump is None else f"a jump of {join.jump:+.6g}"
+                raise _fail(
+                    f"the schedule is declared continuous but has {jump} at {percent(join.position)}",
+                    after.span,
+                    "make each segment start at the value where the previous one ends, or drop `continuous`",
+                )
+    bounds = None if program.bounds is None else (float(program.bounds[0]), float(program.bounds[1]))
+    return Certificate(
+        minimum=min(p.minimum for p in pieces),
+        maximum=max(p.maximum for p in pieces),
+        tail_start=float(start_of_tail),
+        joins=joins,
+        pieces=tuple(pieces),
+        bounds=bounds,
+        extinction=float(program.extinction),
+    )
