@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Literal, Union
+from typing import Literal
 
 from smol_dsl.errors import Span
 
@@ -50,7 +50,7 @@ class Binary:
     span: Span
 
 
-Expr = Union[Number, Name, Call, Unary, Binary]
+Expr = Number | Name | Call | Unary | Binary
 
 # ---------------------------------------------------------------- segments
 
@@ -92,7 +92,7 @@ class Tail:
     pass
 
 
-Shape = Union[Constant, Linear, Bell, Random, Expression, Tail]
+Shape = Constant | Linear | Bell | Random | Expression | Tail
 
 
 @dataclass(frozen=True)

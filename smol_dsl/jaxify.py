@@ -6,7 +6,7 @@ JAX function is built from the verified sympy object itself (no code generation,
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax.numpy as jnp
 import sympy as sp
@@ -86,8 +86,8 @@ def bell(params: BellParams, segment_start: float, segment_end: float) -> Callab
         # with expm1 when G(edge) is close to 1 (a wide bell) to avoid cancellation.
         direct = (jnp.exp(-at_t) - jnp.exp(-at_edge)) / (1.0 - jnp.exp(-at_edge))
         gentle_edge = jnp.minimum(at_edge, 1.0)
-        careful = jnp.exp(-gentle_edge) * jnp.expm1(gentle_edge - jnp.minimum(at_t, gentle_edge)) / -jnp.expm1(
-            -gentle_edge
+        careful = (
+            jnp.exp(-gentle_edge) * jnp.expm1(gentle_edge - jnp.minimum(at_t, gentle_edge)) / -jnp.expm1(-gentle_edge)
         )
         shape = jnp.where(at_edge > 1.0, direct, careful)
         return base + (peak - base) * shape

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from fractions import Fraction
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import sympy as sp
@@ -134,9 +135,7 @@ class Schedule:
 
         key = _default_key(key)
         return [
-            None
-            if s.random is None
-            else jax.random.uniform(jax.random.fold_in(key, s.index), (s.random.count,))
+            None if s.random is None else jax.random.uniform(jax.random.fold_in(key, s.index), (s.random.count,))
             for s in self.segments
         ]
 
@@ -188,7 +187,9 @@ class Schedule:
             from smol_dsl.jaxify import bell, to_jax
 
             self._evaluators = [
-                bell(s.bell, float(s.start), float(s.end)) if s.bell is not None else (None if s.random else to_jax(s.pieces[0].expr))
+                bell(s.bell, float(s.start), float(s.end))
+                if s.bell is not None
+                else (None if s.random else to_jax(s.pieces[0].expr))
                 for s in self.segments
             ]
         return self._evaluators
@@ -224,7 +225,11 @@ def parse(text: str, *, path: str | os.PathLike[str] | None = None) -> Schedule:
         raise error.located(text, shown) from None
     except RecursionError:
         raise ScheduleError(
-            "expression nested too deeply", span=Span(1, 1), hint="split it with `let` constants", source=text, path=shown
+            "expression nested too deeply",
+            span=Span(1, 1),
+            hint="split it with `let` constants",
+            source=text,
+            path=shown,
         ) from None
     return Schedule(symbolic, certificate, text, shown)
 

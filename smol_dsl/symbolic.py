@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Callable, Literal
+from typing import Literal
 
 import sympy as sp
 
@@ -91,9 +92,7 @@ class SymbolicSegment:
         """alpha(t) on this segment as one sympy expression (Piecewise for a bell)."""
         if len(self.pieces) == 1:
             return self.pieces[0].expr
-        return sp.Piecewise(
-            *[(p.expr, T < p.end) for p in self.pieces[:-1]], (self.pieces[-1].expr, True)
-        )
+        return sp.Piecewise(*[(p.expr, T < p.end) for p in self.pieces[:-1]], (self.pieces[-1].expr, True))
 
     def describe_range(self) -> str:
         return f"{percent(self.start)} .. {percent(self.end)}"
@@ -239,7 +238,9 @@ def _power(base: sp.Expr, exponent: sp.Expr, node: ast.Binary) -> sp.Expr:
     if exponent.is_number:
         magnitude = abs(float(exponent.evalf(20))) if exponent.is_real else math.inf
         if magnitude > MAX_EXPONENT or (
-            base.is_number and base.is_real and not base.is_zero
+            base.is_number
+            and base.is_real
+            and not base.is_zero
             and abs(math.log10(abs(float(base.evalf(20))) or 1e-300)) * magnitude > 400
         ):
             raise ScheduleError(

@@ -64,7 +64,7 @@ _EXAMPLE_HINTS: dict[str, list[str]] = {
         "let = 1.4",
         "let 1 = 2",
     ],
-    "strings are written in double quotes, e.g. `name \"SMOL\"`": [
+    'strings are written in double quotes, e.g. `name "SMOL"`': [
         "name SMOL",
         "description hello",
     ],
@@ -273,7 +273,7 @@ def _expected_in_words(expected: set[str]) -> str:
             words.add(name.lower())
     ordered = sorted(words)
     if len(ordered) > 8:
-        ordered = ordered[:8] + ["..."]
+        ordered = [*ordered[:8], "..."]
     return ", ".join(ordered)
 
 
@@ -346,9 +346,7 @@ def check_text(text: str) -> None:
             span=Span(line, column),
             hint="a .sched file is plain UTF-8 text; is this a binary file?",
         )
-    if not text.strip() or all(
-        not line.split("#", 1)[0].strip() for line in text.splitlines()
-    ):
+    if not text.strip() or all(not line.split("#", 1)[0].strip() for line in text.splitlines()):
         raise ScheduleError(
             "empty schedule: the file has no statements",
             span=Span(1, 1),

@@ -15,13 +15,14 @@ import signal
 import threading
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
+from itertools import pairwise
 from typing import Any, Literal
 
 import sympy as sp
 from sympy.calculus.util import maximum, minimum
 
 from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.symbolic import T, Piece, SymbolicProgram, SymbolicSegment, number_text, percent
+from smol_dsl.symbolic import Piece, SymbolicProgram, SymbolicSegment, T, number_text, percent
 
 MIN_TAIL = sp.Rational(1, 10)
 """The last 10% of the run must be at alpha = 1 (the paper's fair-comparison rule)."""
@@ -104,19 +105,19 @@ class Certificate:
         return "\n".join(lines)
 
 
-class _Timeout(Exception):
+class _TimeoutError(Exception):
     pass
 
 
 @contextlib.contextmanager
 def _time_limit(seconds: float) -> Iterator[None]:
-    """Raise _Timeout after `seconds` (main thread only; elsewhere no limit)."""
+    """Raise _TimeoutError after `seconds` (main thread only; elsewhere no limit)."""
     if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
         yield
         return
 
     def on_alarm(signum: int, frame: Any) -> None:
-        raise _Timeout
+        raise _TimeoutError
 
     previous = signal.signal(signal.SIGALRM, on_alarm)
     signal.setitimer(signal.ITIMER_REAL, seconds)
@@ -144,7 +145,7 @@ def _enclosure(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[flo
     """Rigorous bounds of expr over [start, end] by interval arithmetic on sub-intervals."""
     low, high = math.inf, -math.inf
     edges = [start + (end - start) * sp.Rational(k, ENCLOSURE_PIECES) for k in range(ENCLOSURE_PIECES + 1)]
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in pairwise(edges):
         value = expr.subs(T, sp.AccumBounds(a, b))
         if isinstance(value, sp.AccumBounds):
             lo, hi = _real(value.min), _real(value.max)
@@ -208,7 +209,7 @@ def _check_coverage(segments: tuple[SymbolicSegment, ...]) -> None:
             first.span,
             f"start the first segment at 0%, or add a segment `0% .. {percent(first.start)}: ...`",
         )
-    for before, after in zip(segments[:-1], segments[1:]):
+    for before, after in pairwise(segments):
         if after.start > before.end:
             raise _fail(
                 f"gap between {percent(before.end)} and {percent(after.start)}",
@@ -268,7 +269,7 @@ def _value_at(segment: SymbolicSegment, where: Literal["start", "end"]) -> sp.Ex
 
 def _joins(segments: tuple[SymbolicSegment, ...]) -> tuple[JoinCertificate, ...]:
     joins = []
-    for before, after in zip(segments[:-1], segments[1:]):
+    for before, after in pairwise(segments):
         if (before.random is not None and not _is_one(before)) or (after.random is not None and not _is_one(after)):
             joins.append(JoinCertificate(float(after.start), False, None))
             continue
@@ -282,13 +283,21 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
     if segment.random is not None:
         low, high = _real(segment.random.low), _real(segment.random.high)
         assert low is not None and high is not None
-        return PieceCertificate(segment.index + 1, segment.kind, float(piece.start), float(piece.end),
-                                low, high, "constant" if low == high else "random", True)
+        return PieceCertificate(
+            segment.index + 1,
+            segment.kind,
+            float(piece.start),
+            float(piece.end),
+            low,
+            high,
+            "constant" if low == high else "random",
+            True,
+        )
     try:
         with _time_limit(SECONDS_PER_PIECE):
             extrema = _extrema(piece)
             monotone = _sign_of_slope(piece) if extrema is not None else "neither"
-    except _Timeout:
+    except _TimeoutError:
         raise _fail(
             f"could not verify {where} within {SECONDS_PER_PIECE:g} s",
             segment.span,
@@ -303,8 +312,16 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
             "check for a division by zero, or a log or square root of a negative number, inside the segment",
         )
     low, high, exact = extrema
-    return PieceCertificate(segment.index + 1, piece.label if segment.kind == "bell" else segment.kind,
-                            float(piece.start), float(piece.end), low, high, monotone, exact)
+    return PieceCertificate(
+        segment.index + 1,
+        piece.label if segment.kind == "bell" else segment.kind,
+        float(piece.start),
+        float(piece.end),
+        low,
+        high,
+        monotone,
+        exact,
+    )
 
 
 def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: list[PieceCertificate]) -> None:
