@@ -102,6 +102,7 @@ class Schedule:
         """alpha for every phase of `num_phases`, shape (num_phases,)."""
         import jax.numpy as jnp
 
+        _check_phases(num_phases)
         return self.phase_alpha(jnp.arange(num_phases), num_phases, key)
 
     def as_optax(

@@ -287,7 +287,8 @@ def _example_hint(error: UnexpectedInput, text: str) -> str | None:
 def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
     line = getattr(error, "line", None) or 1
     column = getattr(error, "column", None) or 1
-    if line < 1:  # Lark reports EOF errors at line -1
+    at_end = isinstance(error, UnexpectedEOF) or (isinstance(error, UnexpectedToken) and error.token.type == "$END")
+    if line < 1 or at_end:  # point just past the last character
         lines = text.splitlines() or [""]
         line, column = len(lines), len(lines[-1]) + 1
     example = _example_hint(error, text)
@@ -316,6 +317,8 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
                 close = difflib.get_close_matches(str(token), SEGMENT_KINDS, n=1)
                 if close and (error.expected & {"CONSTANT", "LINEAR", "BELL", "RANDOM", "EXPR", "TAIL"}):
                     example = f"did you mean `{close[0]}`? The segment kinds are " + ", ".join(SEGMENT_KINDS)
+        if example is None and "_NL" in error.expected and token.type != "$END":
+            example = "one statement per line: end the line before this, or join it to the expression with an operator"
         hint = example or f"expected {_expected_in_words(set(error.expected))}"
         length = len(str(token)) if token.type not in {"$END", "_NL"} else 1
         return ScheduleError(message, span=Span(line, column, max(1, length)), hint=hint)

@@ -10,6 +10,7 @@ sampled.
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import signal
 import threading
@@ -74,7 +75,7 @@ class Certificate:
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary of the certificate."""
-        return asdict(self)
+        return json.loads(json.dumps(asdict(self)))
 
     def __str__(self) -> str:
         lines = [

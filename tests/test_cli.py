@@ -1,0 +1,137 @@
+"""The `smol-dsl` command line: check, plot, help, version and bad input."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import smol_dsl
+from smol_dsl.cli import main
+
+BROKEN = 'name "broken"\n0% .. 40%: linear 1 -> 2\n50% .. 100%: tail\n'
+
+
+def _command() -> list[str]:
+    exe = shutil.which("smol-dsl")
+    return [exe] if exe else [sys.executable, "-m", "smol_dsl.cli"]
+
+
+def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*_command(), *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def test_check_bundled_schedules_from_any_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["check", *smol_dsl.library_names()]) == 0
+    out = capsys.readouterr().out
+    assert out.count(": ok: ") == 8
+    assert "tail: alpha == 1 from 90% to 100%" in out
+    assert "bell rise" in out and "increasing" in out
+
+
+def test_check_reports_each_broken_file_and_exits_2(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    Path("broken.sched").write_text(BROKEN)
+    assert main(["check", "smol", "broken.sched", "missing.sched"]) == 2
+    captured = capsys.readouterr()
+    assert ": ok: SMOL" in captured.out
+    assert "broken.sched:3:1: error: gap between 40% and 50%" in captured.err
+    assert "^^^" in captured.err and "hint:" in captured.err
+    assert "missing.sched: error: no such file" in captured.err
+    assert "Traceback" not in captured.err
+
+
+def test_check_quiet(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["check", "-q", "human"]) == 0
+    assert capsys.readouterr().out == ""
+
+
+@pytest.mark.parametrize("suffix", [".png", ".svg", ".pdf"])
+def test_plot_writes_each_format(tmp_path, monkeypatch, capsys, suffix):
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / f"fig{suffix}"
+    assert main(["plot", "human", "smol", "random", "-o", str(out), "--phases", "20"]) == 0
+    data = out.read_bytes()
+    magic = {".png": b"\x89PNG", ".svg": b"<?xml", ".pdf": b"%PDF"}[suffix]
+    assert data.startswith(magic)
+    assert len(data) > 5000
+    assert "SMOL-Human" in capsys.readouterr().out
+
+
+def test_plot_defaults(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["plot"]) == 0
+    assert (tmp_path / "schedules.png").is_file()
+    assert main(["plot", "human.sched"]) == 0
+    assert (tmp_path / "human.png").is_file()
+
+
+def test_plot_bad_output(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["plot", "human", "-o", "fig.jpeg"]) == 2
+    assert "one of .png, .svg, .pdf" in capsys.readouterr().err
+    assert main(["plot", "human", "-o", "no/such/dir/fig.png"]) == 2
+    assert "no such directory" in capsys.readouterr().err
+
+
+def test_plot_broken_schedule(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    Path("broken.sched").write_text(BROKEN)
+    assert main(["plot", "broken.sched"]) == 2
+    assert "gap between" in capsys.readouterr().err
+    assert not (tmp_path / "broken.png").exists()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--no-such-flag"],
+        ["check"],
+        ["check", "human", "--frobnicate"],
+        ["plot", "--phases", "0"],
+        ["plot", "--phases", "many"],
+        ["plot", "--seed", "x"],
+        ["fly"],
+        [],
+    ],
+)
+def test_bad_flags_exit_2(argv, capsys):
+    with pytest.raises(SystemExit) as caught:
+        main(argv)
+    assert caught.value.code == 2
+    err = capsys.readouterr().err
+    assert "usage:" in err and "error:" in err
+
+
+def test_help_and_version(capsys):
+    for argv in (["--help"], ["check", "--help"], ["plot", "--help"]):
+        with pytest.raises(SystemExit) as caught:
+            main(argv)
+        assert caught.value.code == 0
+    out = capsys.readouterr().out
+    assert "symbolically" in out and "Figure 2" in out
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert smol_dsl.__version__ in capsys.readouterr().out
+
+
+def test_console_script_end_to_end(tmp_path):
+    """The installed entry point: exit statuses and no traceback, from a clean directory."""
+    (tmp_path / "broken.sched").write_text(BROKEN)
+    ok = run_cli("check", "human.sched", cwd=tmp_path)
+    assert ok.returncode == 0, ok.stderr
+    assert "SMOL-Human" in ok.stdout
+    bad = run_cli("check", "broken.sched", cwd=tmp_path)
+    assert bad.returncode == 2
+    assert "broken.sched:3:1: error:" in bad.stderr and "Traceback" not in bad.stderr
+    flag = run_cli("plot", "--bogus", cwd=tmp_path)
+    assert flag.returncode == 2 and "Traceback" not in flag.stderr
+    junk = tmp_path / "junk.sched"
+    junk.write_bytes(bytes(range(256)))
+    binary = run_cli("check", str(junk), cwd=tmp_path)
+    assert binary.returncode == 2 and "Traceback" not in binary.stderr

@@ -1,0 +1,51 @@
+"""A non-editable install ships the grammar and the schedule library inside the package."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+PROBE = """
+import smol_dsl, smol_dsl.resources as r
+assert str(r.grammar_path()).startswith({site!r}), r.grammar_path()
+assert str(r.library_dir()).startswith({site!r}), r.library_dir()
+assert len(smol_dsl.library_names()) == 8, smol_dsl.library_names()
+print(smol_dsl.load("human").name, float(smol_dsl.load("smol").phase_alphas(100)[90]))
+"""
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> Path:
+    site = tmp_path_factory.mktemp("site")
+    result = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target", str(site), str(REPO)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    if result.returncode != 0:
+        pytest.fail(f"pip install failed:\n{result.stdout}\n{result.stderr}")
+    return site
+
+
+def test_installed_package_works_from_any_directory(installed, tmp_path):
+    package = installed / "smol_dsl"
+    assert (package / "grammar" / "sched.lark").is_file()
+    assert len(list((package / "schedules").glob("*.sched"))) == 8
+    env = {**os.environ, "PYTHONPATH": str(installed)}
+    result = subprocess.run(
+        [sys.executable, "-c", PROBE.format(site=str(installed))],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["SMOL-Human", "1.0"]
