@@ -10,6 +10,8 @@ sampled.
 from __future__ import annotations
 
 import contextlib
+import functools
+import operator
 import json
 import math
 import signal
@@ -28,10 +30,13 @@ from smol_dsl.symbolic import Piece, SymbolicProgram, SymbolicSegment, T, number
 MIN_TAIL = sp.Rational(1, 10)
 """The last 10% of the run must be at alpha = 1 (the paper's fair-comparison rule)."""
 FLOAT32_MAX = 3.4028234663852886e38
-SECONDS_PER_PIECE = 10.0
+EXACT_SECONDS = 3.0
+"""Budget for sympy's exact extrema or monotonicity of one piece before falling back."""
+ENCLOSURE_SECONDS = 10.0
+"""Budget for the interval-arithmetic fallback of one piece."""
 ENCLOSURE_PIECES = 64
 
-Monotone = Literal["constant", "increasing", "decreasing", "random", "neither"]
+Monotone = Literal["constant", "increasing", "decreasing", "random", "neither", "unknown"]
 
 
 @dataclass(frozen=True)
@@ -142,12 +147,33 @@ def _real(value: sp.Expr) -> float | None:
     return number.real
 
 
+def _interval_value(expr: sp.Expr, interval: sp.AccumBounds) -> sp.Expr:
+    """expr with T replaced by an interval, combined with interval arithmetic bottom-up.
+
+    `subs` alone can leave products like `pi*AccumBounds(a, b)` unevaluated; rebuilding
+    each node with Python operators makes AccumBounds absorb its neighbours.
+    """
+    if expr == T:
+        return interval
+    if not expr.has(T):
+        return expr
+    args = [_interval_value(arg, interval) for arg in expr.args]
+    if expr.is_Add:
+        return functools.reduce(operator.add, args)
+    if expr.is_Mul:
+        ordered = sorted(args, key=lambda a: not isinstance(a, sp.AccumBounds))
+        return functools.reduce(operator.mul, ordered)
+    if expr.is_Pow:
+        return args[0] ** args[1]
+    return expr.func(*args)
+
+
 def _enclosure(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[float, float] | None:
     """Rigorous bounds of expr over [start, end] by interval arithmetic on sub-intervals."""
     low, high = math.inf, -math.inf
     edges = [start + (end - start) * sp.Rational(k, ENCLOSURE_PIECES) for k in range(ENCLOSURE_PIECES + 1)]
     for a, b in pairwise(edges):
-        value = expr.subs(T, sp.AccumBounds(a, b))
+        value = _interval_value(expr, sp.AccumBounds(a, b))
         if isinstance(value, sp.AccumBounds):
             lo, hi = _real(value.min), _real(value.max)
         else:
@@ -165,12 +191,14 @@ def _extrema(piece: Piece) -> tuple[float, float, bool] | None:
         value = _real(piece.expr)
         return None if value is None else (value, value, True)
     try:
-        low, high = _real(minimum(piece.expr, T, interval)), _real(maximum(piece.expr, T, interval))
+        with _time_limit(EXACT_SECONDS):
+            low, high = _real(minimum(piece.expr, T, interval)), _real(maximum(piece.expr, T, interval))
         if low is not None and high is not None:
             return low, high, True
-    except (NotImplementedError, ValueError, TypeError, AttributeError):
+    except (NotImplementedError, ValueError, TypeError, AttributeError, _TimeoutError):
         pass
-    enclosed = _enclosure(piece.expr, piece.start, piece.end)
+    with _time_limit(ENCLOSURE_SECONDS):
+        enclosed = _enclosure(piece.expr, piece.start, piece.end)
     return None if enclosed is None else (*enclosed, False)
 
 
@@ -181,21 +209,32 @@ def _sign_of_slope(piece: Piece) -> Monotone:
     slope = sp.diff(piece.expr, T)
     if slope.is_zero or sp.simplify(slope) == 0:
         return "constant"
-    interval = sp.Interval(piece.start, piece.end)
+    # A sign of the slope proven by interval arithmetic is cheap when it works;
+    # otherwise ask sympy, which can also prove that a piece is not monotone.
     try:
-        if sp.is_increasing(piece.expr, interval, T):
-            return "increasing"
-        if sp.is_decreasing(piece.expr, interval, T):
-            return "decreasing"
-    except (NotImplementedError, ValueError, TypeError, AttributeError):
-        pass
-    enclosed = _enclosure(slope, piece.start, piece.end)
+        with _time_limit(ENCLOSURE_SECONDS):
+            enclosed = _enclosure(slope, piece.start, piece.end)
+    except _TimeoutError:
+        enclosed = None
     if enclosed is not None:
         if enclosed[0] >= 0:
             return "increasing"
         if enclosed[1] <= 0:
             return "decreasing"
-    return "neither"
+    interval = sp.Interval(piece.start, piece.end)
+    try:
+        with _time_limit(EXACT_SECONDS):
+            increasing = sp.is_increasing(piece.expr, interval, T)
+            if increasing:
+                return "increasing"
+            decreasing = sp.is_decreasing(piece.expr, interval, T)
+            if decreasing:
+                return "decreasing"
+            if increasing is False and decreasing is False:
+                return "neither"
+    except (NotImplementedError, ValueError, TypeError, AttributeError, _TimeoutError):
+        pass
+    return "unknown"
 
 
 def _fail(message: str, span: Span, hint: str) -> ScheduleError:
@@ -295,12 +334,11 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
             True,
         )
     try:
-        with _time_limit(SECONDS_PER_PIECE):
-            extrema = _extrema(piece)
-            monotone = _sign_of_slope(piece) if extrema is not None else "neither"
+        extrema = _extrema(piece)
+        monotone = _sign_of_slope(piece) if extrema is not None else "neither"
     except _TimeoutError:
         raise _fail(
-            f"could not verify {where} within {SECONDS_PER_PIECE:g} s",
+            f"could not verify {where} within the time limit",
             segment.span,
             "sympy could not bound this expression quickly; simplify it or split the segment",
         ) from None
@@ -358,6 +396,13 @@ def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: lis
         if broken:
             first_value = _value_at(segment, "start")
             last_value = _value_at(segment, "end")
+            if segment.random is None and all(p.monotone == "unknown" for p in broken):
+                raise _fail(
+                    f"could not prove that {where} is {segment.monotone}",
+                    segment.span,
+                    "neither sympy nor interval arithmetic could decide the sign of the derivative; "
+                    f"simplify the expression, split the segment, or remove `{segment.monotone}`",
+                )
             if segment.random is not None:
                 detail = "a random segment is not monotone"
             else:
