@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import operator
 import json
 import math
+import operator
 import signal
 import threading
 from collections.abc import Iterator
