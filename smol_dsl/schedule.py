@@ -119,13 +119,21 @@ class Schedule:
         """
         if total_steps <= 0:
             raise ValueError(f"total_steps must be positive, not {total_steps}")
+        if num_phases is not None:
+            _check_phases(num_phases)
+            # phase k starts at step ceil(k * total / N), computed exactly here so that a
+            # traced int32 count never overflows in count * N
+            first_steps = np.asarray([-(-k * total_steps // num_phases) for k in range(1, num_phases)], dtype=np.int64)
+            if total_steps >= 2**31 - 1:
+                raise ValueError(f"total_steps must be below 2**31 for int32 step counts, not {total_steps}")
 
         def schedule(count: jax.typing.ArrayLike) -> jax.Array:
             import jax.numpy as jnp
 
             if num_phases is None:
                 return self.alpha(jnp.asarray(count) / total_steps, key)
-            phase = (jnp.asarray(count, dtype=jnp.int32) * num_phases) // total_steps
+            boundaries = jnp.asarray(first_steps, dtype=jnp.int32)
+            phase = jnp.searchsorted(boundaries, jnp.asarray(count, dtype=jnp.int32), side="right")
             return self.phase_alpha(phase, num_phases, key)
 
         return schedule

@@ -39,6 +39,10 @@ FUNCTIONS: dict[str, tuple[Callable[..., sp.Expr], int | None]] = {
     "max": (sp.Max, None),
 }
 CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi, "e": sp.E}
+RESERVED_WORDS = frozenset(
+    "name description let bounds extinction continuous constant linear bell random expr tail "
+    "at width every increasing decreasing".split()
+)
 
 ShapeKind = Literal["constant", "linear", "bell", "random", "expr", "tail"]
 
@@ -135,6 +139,12 @@ class _Builder:
         self.constants: dict[str, sp.Expr] = dict(CONSTANTS)
 
     def define(self, let: ast.Let) -> None:
+        if let.name in RESERVED_WORDS:
+            raise ScheduleError(
+                f"`{let.name}` is a reserved word",
+                span=let.span,
+                hint="choose another name for this constant; reserved: " + ", ".join(sorted(RESERVED_WORDS)),
+            )
         if let.name in self.constants or let.name in FUNCTIONS or let.name in ("t", "u"):
             what = "a built-in name" if let.name not in self.constants or let.name in CONSTANTS else "already defined"
             raise ScheduleError(
@@ -351,8 +361,8 @@ def _segment(builder: _Builder, index: int, node: ast.Segment) -> SymbolicSegmen
                     hint="the width is a fraction of the run, e.g. `width 15%`",
                 )
         pieces = (
-            Piece(bell_half(a, p, m, w, start), start, m, "bell rise"),
-            Piece(bell_half(z, p, m, w, end), m, end, "bell fall"),
+            Piece(bell_half(a, p, m, w, start), start, m, "bell to peak"),
+            Piece(bell_half(z, p, m, w, end), m, end, "bell from peak"),
         )
         return SymbolicSegment(pieces=pieces, bell=BellParams(a, p, m, z, w), **common)
     assert isinstance(shape, ast.Random)

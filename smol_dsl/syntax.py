@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import sys
 from fractions import Fraction
 from functools import lru_cache
 from typing import Any
@@ -114,24 +115,26 @@ def _span_of_meta(meta: Any) -> Span:
     return Span(meta.line, meta.column, max(1, length))
 
 
+FLOAT_MAX = Fraction(sys.float_info.max)
+FLOAT_MIN = Fraction(sys.float_info.min)
+
+
 def _number(token: Token) -> ast.Number:
+    """A literal as an exact Fraction; it must be 0 or a normal float64 magnitude."""
     text = str(token)
     span = _span_of_token(token)
-    mantissa, _, exponent = text.lower().partition("e")
-    if exponent and abs(int(exponent)) > MAX_EXPONENT_DIGITS:
-        raise ScheduleError(
-            f"number {text} is out of range",
-            span=span,
-            hint="numbers must fit a 64-bit float (about 1e-308 to 1e308); alpha is a modest factor like 1.5",
-        )
+    out_of_range = ScheduleError(
+        f"number {text} is out of range",
+        span=span,
+        hint="numbers must be 0 or between about 2.2e-308 and 1.8e308 (64-bit floats); "
+        "alpha is a modest factor like 1.5",
+    )
+    _, _, exponent = text.lower().partition("e")
+    if exponent and abs(int(exponent)) > MAX_EXPONENT_DIGITS:  # before building a huge integer
+        raise out_of_range
     value = Fraction(text)
-    if value > Fraction(10) ** 308:
-        raise ScheduleError(
-            f"number {text} is out of range",
-            span=span,
-            hint="numbers must fit a 64-bit float (at most about 1.8e308)",
-        )
-    del mantissa
+    if value != 0 and not FLOAT_MIN <= value <= FLOAT_MAX:
+        raise out_of_range
     return ast.Number(value, text, span)
 
 
@@ -277,11 +280,39 @@ def _expected_in_words(expected: set[str]) -> str:
     return ", ".join(ordered)
 
 
-def _example_hint(error: UnexpectedInput, text: str) -> str | None:
-    try:
-        return error.match_examples(_parser().parse, _EXAMPLE_HINTS, use_accepts=True)
-    except Exception:  # example matching is best effort; the expected-token hint stands
-        return None
+@lru_cache(maxsize=1)
+def _example_errors() -> list[tuple[str, UnexpectedInput]]:
+    errors = []
+    for label, examples in _EXAMPLE_HINTS.items():
+        for example in examples:
+            try:
+                _parser().parse(example)
+            except UnexpectedInput as error:
+                errors.append((label, error))
+    return errors
+
+
+def _token_type(error: UnexpectedInput) -> str | None:
+    token = getattr(error, "token", None)
+    return token.type if token is not None else None
+
+
+def _example_hint(error: UnexpectedInput) -> str | None:
+    """The hint of the known mistake that fails in the same parser state, if any.
+
+    Lark's own `match_examples` does this too; ours prefers an example whose unexpected
+    token has the same type, and never fails.
+    """
+    fallback = None
+    for label, known in _example_errors():
+        if type(known) is not type(error) or known.state != error.state:
+            continue
+        if getattr(known, "accepts", None) != getattr(error, "accepts", None):
+            continue
+        if _token_type(known) == _token_type(error):
+            return label
+        fallback = fallback or label
+    return fallback
 
 
 def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
@@ -291,7 +322,7 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
     if line < 1 or at_end:  # point just past the last character
         lines = text.splitlines() or [""]
         line, column = len(lines), len(lines[-1]) + 1
-    example = _example_hint(error, text)
+    example = _example_hint(error)
     if isinstance(error, UnexpectedCharacters):
         char = text[error.pos_in_stream] if error.pos_in_stream < len(text) else "?"
         message = f"unexpected character {char!r}"
@@ -300,6 +331,8 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
             hint = "powers are written with `**`, e.g. `t**2`"
         elif char in "[]{}":
             hint = "group with round brackets `( )`"
+        elif char == "." and error.pos_in_stream > 0 and text[error.pos_in_stream - 1].isdigit():
+            hint = "a number needs digits after its decimal point (`1.0`, not `1.`); ranges are written `..`"
         elif char == "'":
             hint = 'strings are written in double quotes, e.g. `name "SMOL"`'
         if hint is None:

@@ -9,34 +9,29 @@ sampled.
 
 from __future__ import annotations
 
-import contextlib
-import functools
 import json
-import math
-import operator
-import signal
-import threading
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from itertools import pairwise
 from typing import Any, Literal
 
 import sympy as sp
-from sympy.calculus.util import maximum, minimum
 
+from smol_dsl.bounds import (
+    Monotone,
+    VerificationTimeoutError,
+    domain_violation,
+    extrema,
+    is_zero,
+    real,
+    simplified,
+    slope_sign,
+)
 from smol_dsl.errors import ScheduleError, Span
 from smol_dsl.symbolic import Piece, SymbolicProgram, SymbolicSegment, T, number_text, percent
 
 MIN_TAIL = sp.Rational(1, 10)
 """The last 10% of the run must be at alpha = 1 (the paper's fair-comparison rule)."""
 FLOAT32_MAX = 3.4028234663852886e38
-EXACT_SECONDS = 3.0
-"""Budget for sympy's exact extrema or monotonicity of one piece before falling back."""
-ENCLOSURE_SECONDS = 10.0
-"""Budget for the interval-arithmetic fallback of one piece."""
-ENCLOSURE_PIECES = 64
-
-Monotone = Literal["constant", "increasing", "decreasing", "random", "neither", "unknown"]
 
 
 @dataclass(frozen=True)
@@ -94,7 +89,7 @@ class Certificate:
             extent = f"{percent(p.start)} .. {percent(p.end)}"
             note = "" if p.exact else "  (interval enclosure)"
             lines.append(
-                f"    #{p.segment:<2} {extent:<16} {p.kind:<11} alpha {p.minimum:.6g} .. {p.maximum:.6g}"
+                f"    #{p.segment:<2} {extent:<16} {p.kind:<14} alpha {p.minimum:.6g} .. {p.maximum:.6g}"
                 f"   {p.monotone}{note}"
             )
         if self.joins:
@@ -109,132 +104,6 @@ class Certificate:
             lines.append("  joins: " + ", ".join(words))
         lines.append(f"  extinction: {self.extinction:g}")
         return "\n".join(lines)
-
-
-class _TimeoutError(Exception):
-    pass
-
-
-@contextlib.contextmanager
-def _time_limit(seconds: float) -> Iterator[None]:
-    """Raise _TimeoutError after `seconds` (main thread only; elsewhere no limit)."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
-        yield
-        return
-
-    def on_alarm(signum: int, frame: Any) -> None:
-        raise _TimeoutError
-
-    previous = signal.signal(signal.SIGALRM, on_alarm)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-
-
-def _real(value: sp.Expr) -> float | None:
-    """A finite real float of an exact value, or None."""
-    if value is None or value.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.AccumBounds):
-        return None
-    try:
-        number = complex(sp.N(value, 30))
-    except (TypeError, ValueError):
-        return None
-    if not math.isfinite(number.real) or abs(number.imag) > 1e-30:
-        return None
-    return number.real
-
-
-def _interval_value(expr: sp.Expr, interval: sp.AccumBounds) -> sp.Expr:
-    """expr with T replaced by an interval, combined with interval arithmetic bottom-up.
-
-    `subs` alone can leave products like `pi*AccumBounds(a, b)` unevaluated; rebuilding
-    each node with Python operators makes AccumBounds absorb its neighbours.
-    """
-    if expr == T:
-        return interval
-    if not expr.has(T):
-        return expr
-    args = [_interval_value(arg, interval) for arg in expr.args]
-    if expr.is_Add:
-        return functools.reduce(operator.add, args)
-    if expr.is_Mul:
-        ordered = sorted(args, key=lambda a: not isinstance(a, sp.AccumBounds))
-        return functools.reduce(operator.mul, ordered)
-    if expr.is_Pow:
-        return args[0] ** args[1]
-    return expr.func(*args)
-
-
-def _enclosure(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[float, float] | None:
-    """Rigorous bounds of expr over [start, end] by interval arithmetic on sub-intervals."""
-    low, high = math.inf, -math.inf
-    edges = [start + (end - start) * sp.Rational(k, ENCLOSURE_PIECES) for k in range(ENCLOSURE_PIECES + 1)]
-    for a, b in pairwise(edges):
-        value = _interval_value(expr, sp.AccumBounds(a, b))
-        if isinstance(value, sp.AccumBounds):
-            lo, hi = _real(value.min), _real(value.max)
-        else:
-            lo = hi = _real(value)
-        if lo is None or hi is None:
-            return None
-        low, high = min(low, lo), max(high, hi)
-    return low, high
-
-
-def _extrema(piece: Piece) -> tuple[float, float, bool] | None:
-    """(min, max, exact) of a piece over its closed interval, or None if unbounded/unknown."""
-    interval = sp.Interval(piece.start, piece.end)
-    if not piece.expr.has(T):
-        value = _real(piece.expr)
-        return None if value is None else (value, value, True)
-    try:
-        with _time_limit(EXACT_SECONDS):
-            low, high = _real(minimum(piece.expr, T, interval)), _real(maximum(piece.expr, T, interval))
-        if low is not None and high is not None:
-            return low, high, True
-    except (NotImplementedError, ValueError, TypeError, AttributeError, _TimeoutError):
-        pass
-    with _time_limit(ENCLOSURE_SECONDS):
-        enclosed = _enclosure(piece.expr, piece.start, piece.end)
-    return None if enclosed is None else (*enclosed, False)
-
-
-def _sign_of_slope(piece: Piece) -> Monotone:
-    """The proven monotonicity of a piece."""
-    if not piece.expr.has(T):
-        return "constant"
-    slope = sp.diff(piece.expr, T)
-    if slope.is_zero or sp.simplify(slope) == 0:
-        return "constant"
-    # A sign of the slope proven by interval arithmetic is cheap when it works;
-    # otherwise ask sympy, which can also prove that a piece is not monotone.
-    try:
-        with _time_limit(ENCLOSURE_SECONDS):
-            enclosed = _enclosure(slope, piece.start, piece.end)
-    except _TimeoutError:
-        enclosed = None
-    if enclosed is not None:
-        if enclosed[0] >= 0:
-            return "increasing"
-        if enclosed[1] <= 0:
-            return "decreasing"
-    interval = sp.Interval(piece.start, piece.end)
-    try:
-        with _time_limit(EXACT_SECONDS):
-            increasing = sp.is_increasing(piece.expr, interval, T)
-            if increasing:
-                return "increasing"
-            decreasing = sp.is_decreasing(piece.expr, interval, T)
-            if decreasing:
-                return "decreasing"
-            if increasing is False and decreasing is False:
-                return "neither"
-    except (NotImplementedError, ValueError, TypeError, AttributeError, _TimeoutError):
-        pass
-    return "unknown"
 
 
 def _fail(message: str, span: Span, hint: str) -> ScheduleError:
@@ -278,7 +147,7 @@ def _check_coverage(segments: tuple[SymbolicSegment, ...]) -> None:
 def _is_one(segment: SymbolicSegment) -> bool:
     if segment.random is not None:
         return bool(segment.random.low == 1 and segment.random.high == 1)
-    return all(sp.simplify(p.expr - 1) == 0 for p in segment.pieces)
+    return all(is_zero(p.expr - 1) for p in segment.pieces)
 
 
 def tail_start(segments: tuple[SymbolicSegment, ...]) -> sp.Rational:
@@ -313,19 +182,20 @@ def _joins(segments: tuple[SymbolicSegment, ...]) -> tuple[JoinCertificate, ...]
         if (before.random is not None and not _is_one(before)) or (after.random is not None and not _is_one(after)):
             joins.append(JoinCertificate(float(after.start), False, None))
             continue
-        jump = sp.simplify(_value_at(after, "start") - _value_at(before, "end"))
-        joins.append(JoinCertificate(float(after.start), bool(jump == 0), _real(jump) or 0.0))
+        jump = _value_at(after, "start") - _value_at(before, "end")
+        joins.append(JoinCertificate(float(after.start), is_zero(jump), real(jump) or 0.0))
     return tuple(joins)
 
 
 def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
     where = f"segment {segment.index + 1} ({segment.describe_range()}, {segment.kind})"
+    kind = piece.label if segment.kind == "bell" else segment.kind
     if segment.random is not None:
-        low, high = _real(segment.random.low), _real(segment.random.high)
+        low, high = real(segment.random.low), real(segment.random.high)
         assert low is not None and high is not None
         return PieceCertificate(
             segment.index + 1,
-            segment.kind,
+            kind,
             float(piece.start),
             float(piece.end),
             low,
@@ -334,9 +204,11 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
             True,
         )
     try:
-        extrema = _extrema(piece)
-        monotone = _sign_of_slope(piece) if extrema is not None else "neither"
-    except _TimeoutError:
+        violation = domain_violation(piece.expr, piece.start, piece.end)
+        expr = simplified(piece.expr)
+        found = extrema(expr, piece.start, piece.end) if violation is None else None
+        monotone = slope_sign(expr, piece.start, piece.end) if found is not None else "unknown"
+    except VerificationTimeoutError:
         raise _fail(
             f"could not verify {where} within the time limit",
             segment.span,
@@ -344,22 +216,21 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
         ) from None
     except RecursionError:
         raise _fail(f"{where} is too deeply nested to verify", segment.span, "simplify the expression") from None
-    if extrema is None:
+    if violation is not None:
+        raise _fail(
+            f"alpha is not real everywhere on {where}: {violation}",
+            segment.span,
+            "keep square roots and powers of non-negative values, logarithms of positive values, "
+            "and divisions away from zero, over the whole segment",
+        )
+    if found is None:
         raise _fail(
             f"alpha is not finite and real everywhere on {where}",
             segment.span,
             "check for a division by zero, or a log or square root of a negative number, inside the segment",
         )
-    low, high, exact = extrema
     return PieceCertificate(
-        segment.index + 1,
-        piece.label if segment.kind == "bell" else segment.kind,
-        float(piece.start),
-        float(piece.end),
-        low,
-        high,
-        monotone,
-        exact,
+        segment.index + 1, kind, float(piece.start), float(piece.end), found.low, found.high, monotone, found.exact
     )
 
 

@@ -148,3 +148,12 @@ def test_symbolic_form_is_a_piecewise_of_t(library):
 def test_repr_is_informative(library):
     text = repr(library["human"])
     assert "SMOL-Human" in text and "tail from 90%" in text
+
+
+def test_optax_phases_do_not_overflow_int32(library):
+    stepped = library["smol"].as_optax(100_000_000, num_phases=100)
+    assert float(stepped(95_000_000)) == 1.0
+    assert float(stepped(21_474_837)) == pytest.approx(1.5 - 0.5 * 21 / 90)
+    assert float(stepped(89_999_999)) == pytest.approx(1.5 - 0.5 * 89 / 90)
+    with pytest.raises(ValueError):
+        library["smol"].as_optax(2**31, num_phases=100)

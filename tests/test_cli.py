@@ -30,7 +30,7 @@ def test_check_bundled_schedules_from_any_directory(tmp_path, monkeypatch, capsy
     out = capsys.readouterr().out
     assert out.count(": ok: ") == 8
     assert "tail: alpha == 1 from 90% to 100%" in out
-    assert "bell rise" in out and "increasing" in out
+    assert "bell to peak" in out and "increasing" in out
 
 
 def test_check_reports_each_broken_file_and_exits_2(tmp_path, monkeypatch, capsys):
@@ -135,3 +135,9 @@ def test_console_script_end_to_end(tmp_path):
     junk.write_bytes(bytes(range(256)))
     binary = run_cli("check", str(junk), cwd=tmp_path)
     assert binary.returncode == 2 and "Traceback" not in binary.stderr
+
+
+def test_plot_notes_phase_counts_without_an_alpha_one_phase(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["plot", "smol", "--phases", "7"]) == 0
+    assert "no phase of SMOL runs wholly at alpha = 1" in capsys.readouterr().err

@@ -70,8 +70,36 @@ CASES = {
     "zero alpha": ("0% .. 90%: linear 0 -> 1\n" + TAIL, 1, 1, "above 0", "gear"),
     "negative alpha": ("0% .. 90%: constant -0.5\n" + TAIL, 1, 1, "goes down to -0.5", "gear"),
     "negative inside": ("0% .. 90%: expr 1 - 2*sin(10*t)\n" + TAIL, 1, 1, "above 0", "gear"),
-    "log of negative": ("0% .. 90%: expr log(t - 0.5)\n" + TAIL, 1, 1, "not finite and real", "log"),
-    "pole": ("0% .. 90%: expr 1 + 1/(t - 0.5)\n" + TAIL, 1, 1, "not finite and real", "division by zero"),
+    "log of negative": (
+        "0% .. 90%: expr log(t - 0.5)\n" + TAIL,
+        1,
+        1,
+        "a logarithm needs a positive argument, but t - 1/2 goes down to -0.5",
+        "logarithms of positive values",
+    ),
+    "sqrt of negative": (
+        "0% .. 90%: expr 1 + sqrt(0.5 - u)\n" + TAIL,
+        1,
+        1,
+        "a square root needs a non-negative argument, but 1/2 - 10*t/9 goes down to -0.5",
+        "square roots",
+    ),
+    "pole": (
+        "0% .. 90%: expr 1 + 1/(t - 0.5)\n" + TAIL,
+        1,
+        1,
+        "a division needs a non-zero argument, but t - 1/2 ranges over -0.5 .. 0.4",
+        "divisions away from zero",
+    ),
+    "reserved word": ("let tail = 2\n0% .. 100%: tail\n", 1, 1, "`tail` is a reserved word", "reserved: at, bell"),
+    "dangling decimal point": (
+        "0% .. 90%: linear 1. -> 2\n" + TAIL,
+        1,
+        20,
+        "unexpected character '.'",
+        "digits after its decimal point",
+    ),
+    "tiny literal": ("0% .. 90%: constant 1 + 1e-350\n" + TAIL, 1, 25, "out of range", "2.2e-308"),
     "above bounds": (
         "bounds 0.5 .. 1.5\n0% .. 90%: linear 1.6 -> 1\n" + TAIL,
         2,
@@ -177,3 +205,36 @@ def test_long_lines_are_clipped_around_the_caret():
     excerpt, caret = str(caught.value).splitlines()[1:3]
     assert len(excerpt) <= 130
     assert excerpt[caret.index("^")] == "$"
+
+
+def test_reserved_words_are_the_grammar_keywords():
+    import re
+
+    from smol_dsl.resources import grammar_path
+    from smol_dsl.symbolic import RESERVED_WORDS
+
+    keywords = set(re.findall(r'"([a-z]+)"', grammar_path().read_text()))
+    assert keywords == RESERVED_WORDS
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        "1 + 0.3 * tanh(u) * cos(u)",
+        "max(1, 1.5 - abs(u - 0.3))",
+        "1 + 0.2*tanh(sin(3*u) + cos(5*u))",
+        "log(t + 1) + exp(-t)",
+        "1 + sqrt(u)",
+        "sin(t)**2 + cos(t)**2 + 0.5*(1 - u)",
+    ],
+)
+def test_finite_real_expressions_are_accepted(body):
+    schedule = smol_dsl.parse(f"0% .. 90%: expr {body}\n" + TAIL)
+    piece = schedule.certificate.pieces[0]
+    assert 0 < piece.minimum <= piece.maximum <= 2
+
+
+def test_an_exact_identity_meets_tight_bounds():
+    schedule = smol_dsl.parse("bounds 1 .. 1.5\n0% .. 50%: linear 1.5 -> 1\n50% .. 100%: expr sin(t)**2 + cos(t)**2\n")
+    assert schedule.certificate.minimum == 1.0
+    assert schedule.tail_start == 0.5

@@ -1,0 +1,318 @@
+"""Proving facts about a real function of t on a closed interval, symbolically.
+
+- `extrema`: exact minimum and maximum from sympy's critical points; where sympy cannot
+  find them, a rigorous enclosure by interval arithmetic (mpmath's `iv`, outward rounding,
+  on sub-intervals refined by bisection where the bound is decided).
+- `slope_sign`: monotonicity from the sign of the derivative, by the same two methods.
+- `domain_violation`: whether the function is real everywhere on the interval (square
+  roots and logarithms of non-negative / positive arguments, no division by zero).
+
+Each method runs under a time budget, so untrusted input cannot hang verification.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import heapq
+import math
+import operator
+import signal
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from itertools import pairwise
+from typing import Any, Literal
+
+import sympy as sp
+from mpmath import iv
+from sympy.calculus.util import maximum, minimum
+
+from smol_dsl.symbolic import T
+
+EXACT_SECONDS = 2.0
+"""Budget for one exact sympy method (extrema, monotonicity, simplification)."""
+ENCLOSURE_SECONDS = 10.0
+"""Budget for one interval-arithmetic enclosure."""
+ENCLOSURE_PIECES = 64
+"""Sub-intervals of the first enclosure."""
+REFINEMENTS = 256
+"""Bisections spent tightening each side of an enclosure."""
+
+Monotone = Literal["constant", "increasing", "decreasing", "random", "neither", "unknown"]
+
+
+class VerificationTimeoutError(Exception):
+    """A symbolic method ran out of its time budget."""
+
+
+@contextlib.contextmanager
+def time_limit(seconds: float) -> Iterator[None]:
+    """Raise VerificationTimeoutError after `seconds` (main thread only; elsewhere no limit)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
+        yield
+        return
+
+    def on_alarm(signum: int, frame: Any) -> None:
+        raise VerificationTimeoutError
+
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+_SYMPY_FAILURES = (NotImplementedError, ValueError, TypeError, AttributeError, RecursionError, VerificationTimeoutError)
+
+
+def real(value: sp.Expr | None) -> float | None:
+    """A finite real float of an exact value, or None."""
+    if value is None or value.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.AccumBounds):
+        return None
+    try:
+        number = complex(sp.N(value, 30))
+    except (TypeError, ValueError):
+        return None
+    if not math.isfinite(number.real) or abs(number.imag) > 1e-30:
+        return None
+    return number.real
+
+
+def simplified(expr: sp.Expr) -> sp.Expr:
+    """sympy's simplification of expr if it finishes in time and is no more complex."""
+    if not expr.has(T) or expr.is_polynomial(T):
+        return expr
+    try:
+        with time_limit(EXACT_SECONDS):
+            candidate = sp.simplify(expr)
+    except _SYMPY_FAILURES:
+        return expr
+    return candidate if sp.count_ops(candidate) <= sp.count_ops(expr) else expr
+
+
+def is_zero(expr: sp.Expr) -> bool:
+    """Whether expr is identically zero, as far as sympy can prove within the budget."""
+    if expr.is_zero:
+        return True
+    try:
+        with time_limit(EXACT_SECONDS):
+            return bool(sp.simplify(expr) == 0)
+    except _SYMPY_FAILURES:
+        return False
+
+
+# ---------------------------------------------------------------- interval arithmetic
+
+
+class _NoEnclosureError(Exception):
+    """Interval arithmetic cannot bound this expression (e.g. a log of an interval reaching 0)."""
+
+
+def _iv_exact(value: sp.Rational) -> Any:
+    return iv.mpf(int(value.p)) / iv.mpf(int(value.q))
+
+
+def _iv_value(expr: sp.Expr, x: Any) -> Any:
+    """expr evaluated by rigorous interval arithmetic (mpmath.iv, outward rounding) for t in x."""
+    if expr == T:
+        return x
+    if expr.is_Rational:
+        return _iv_exact(expr)
+    if expr.is_Float:
+        return iv.mpf(str(expr))
+    if expr == sp.pi:
+        return iv.pi
+    if expr == sp.E:
+        return iv.e
+    args = [_iv_value(arg, x) for arg in expr.args]
+    if expr.is_Add:
+        return functools.reduce(operator.add, args)
+    if expr.is_Mul:
+        return functools.reduce(operator.mul, args)
+    if expr.is_Pow:
+        base, exponent = args
+        power = expr.args[1]
+        if power.is_Integer:
+            n = int(power)
+            return base**n if n >= 0 else 1 / base**-n
+        if power == sp.Rational(1, 2):
+            return iv.sqrt(base)
+        return iv.exp(exponent * iv.log(base))
+    if isinstance(expr, sp.exp):
+        return iv.exp(args[0])
+    if isinstance(expr, sp.log):
+        return iv.log(args[0])
+    if isinstance(expr, sp.sin):
+        return iv.sin(args[0])
+    if isinstance(expr, sp.cos):
+        return iv.cos(args[0])
+    if isinstance(expr, sp.tanh):  # x appears once, so the enclosure stays tight
+        return 1 - 2 / (iv.exp(2 * args[0]) + 1)
+    if isinstance(expr, sp.Abs):
+        return abs(args[0])
+    if isinstance(expr, (sp.Min, sp.Max)):
+        pick = min if isinstance(expr, sp.Min) else max
+        return iv.mpf([pick(a.a for a in args), pick(a.b for a in args)])
+    raise _NoEnclosureError(type(expr).__name__)
+
+
+def interval_value(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[float, float] | None:
+    """(low, high) enclosing expr(t) for every t in [start, end], or None if it cannot be bounded."""
+    x = iv.mpf([_iv_exact(start).a, _iv_exact(end).b])
+    try:
+        value = _iv_value(expr, x)
+    except (_NoEnclosureError, ValueError, ZeroDivisionError, TypeError):
+        return None
+    low, high = float(value.a), float(value.b)
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return None
+    return low, high
+
+
+def enclosure(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[float, float] | None:
+    """Rigorous (low, high) with low <= expr(t) <= high for t in [start, end], or None.
+
+    Starts from ENCLOSURE_PIECES sub-intervals, then bisects the sub-interval that decides
+    the lower bound, and the one that decides the upper bound, REFINEMENTS times each.
+    """
+    edges = [start + (end - start) * sp.Rational(k, ENCLOSURE_PIECES) for k in range(ENCLOSURE_PIECES + 1)]
+    pieces: list[tuple[sp.Rational, sp.Rational, float, float]] = []
+    for a, b in pairwise(edges):
+        bounds = interval_value(expr, a, b)
+        if bounds is None:
+            return None
+        pieces.append((a, b, *bounds))
+
+    def refine(side: int) -> float:
+        sign = 1 if side == 2 else -1  # a heap on low ascending, or on high descending
+        heap = [(sign * p[side], i, p) for i, p in enumerate(pieces)]
+        heapq.heapify(heap)
+        counter = len(heap)
+        for _ in range(REFINEMENTS):
+            _, _, (a, b, low, high) = heapq.heappop(heap)
+            middle = (a + b) / 2
+            for left, right in ((a, middle), (middle, b)):
+                bounds = interval_value(expr, left, right) or (low, high)
+                # a child's bound is never looser than its parent's
+                child = (left, right, max(bounds[0], low), min(bounds[1], high))
+                heapq.heappush(heap, (sign * child[side], counter, child))
+                counter += 1
+        return sign * heap[0][0]
+
+    return refine(2), refine(3)
+
+
+# ---------------------------------------------------------------- the facts
+
+
+@dataclass(frozen=True)
+class Extrema:
+    low: float
+    high: float
+    exact: bool  # False: an enclosure (low <= min, max <= high), not the extrema themselves
+
+
+def extrema(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Extrema | None:
+    """Minimum and maximum of expr over [start, end]; None if not finite and real there."""
+    if not expr.has(T):
+        value = real(expr)
+        return None if value is None else Extrema(value, value, True)
+    interval = sp.Interval(start, end)
+    try:
+        with time_limit(EXACT_SECONDS):
+            low, high = real(minimum(expr, T, interval)), real(maximum(expr, T, interval))
+        if low is not None and high is not None:
+            return Extrema(low, high, True)
+    except _SYMPY_FAILURES:
+        pass
+    try:
+        with time_limit(ENCLOSURE_SECONDS):
+            enclosed = enclosure(expr, start, end)
+    except _SYMPY_FAILURES:
+        enclosed = None
+    return None if enclosed is None else Extrema(*enclosed, False)
+
+
+def slope_sign(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Monotone:
+    """'increasing' / 'decreasing' (non-strict) or 'constant' where proven, 'neither' where
+    the slope is shown to take both signs, 'unknown' where nothing could be decided."""
+    if not expr.has(T):
+        return "constant"
+    slope = sp.diff(expr, T)
+    if slope.is_zero or simplified(slope) == 0:
+        return "constant"
+    # Interval arithmetic on the derivative is cheap when it decides; otherwise ask
+    # sympy, which can also prove that a piece is not monotone.
+    try:
+        with time_limit(ENCLOSURE_SECONDS):
+            enclosed = enclosure(slope, start, end)
+    except _SYMPY_FAILURES:
+        enclosed = None
+    if enclosed is not None:
+        if enclosed[0] >= 0:
+            return "increasing"
+        if enclosed[1] <= 0:
+            return "decreasing"
+    # sympy on the open interval (a derivative may be infinite at an end, as for sqrt);
+    # alpha is continuous on the closed interval, so that decides it there too.
+    interval = sp.Interval.open(start, end)
+    try:
+        with time_limit(EXACT_SECONDS):
+            if sp.is_increasing(expr, interval, T):
+                return "increasing"
+            if sp.is_decreasing(expr, interval, T):
+                return "decreasing"
+    except _SYMPY_FAILURES:
+        pass
+    # Not monotone is proven by a witness: the slope, evaluated exactly, takes both signs.
+    signs = set()
+    for k in range(1, 32):
+        value = real(slope.subs(T, start + (end - start) * sp.Rational(k, 32)))
+        if value is not None and value != 0:
+            signs.add(value > 0)
+    return "neither" if signs == {True, False} else "unknown"
+
+
+def _requirements(expr: sp.Expr) -> Iterator[tuple[sp.Expr, str, str]]:
+    """(argument, rule, what) for every sub-expression that is real only on part of the line."""
+    for node in sp.preorder_traversal(expr):
+        if not getattr(node, "has", None) or not node.has(T):
+            continue
+        if isinstance(node, sp.log):
+            yield node.args[0], "positive", "a logarithm"
+        elif node.is_Pow:
+            base, exponent = node.args
+            if not base.has(T):
+                if not (base.is_positive or base == sp.E):
+                    yield base, "positive", "a power with a variable exponent"
+                continue
+            if exponent.is_integer:
+                if exponent.is_negative:
+                    yield base, "nonzero", "a division"
+            elif exponent.is_positive:
+                yield base, "nonnegative", "a square root" if exponent == sp.Rational(1, 2) else "a fractional power"
+            else:
+                yield base, "positive", "a negative fractional power" if exponent.is_number else "a power"
+
+
+def domain_violation(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> str | None:
+    """Why expr is not real on all of [start, end], or None when that is proven."""
+    for argument, rule, what in _requirements(expr):
+        bounds = extrema(argument, start, end)
+        if bounds is None:
+            return f"the argument of {what} ({argument}) could not be bounded"
+        low, high = bounds.low, bounds.high
+        proven = {
+            "positive": low > 0,
+            "nonnegative": low >= 0,
+            "nonzero": low > 0 or high < 0,
+        }[rule]
+        if not proven:
+            needs = {"positive": "positive", "nonnegative": "non-negative", "nonzero": "non-zero"}[rule]
+            found = f"goes down to {low:.6g}" if rule != "nonzero" else f"ranges over {low:.6g} .. {high:.6g}"
+            approx = "" if bounds.exact else " (by interval arithmetic)"
+            return f"{what} needs a {needs} argument, but {argument} {found}{approx}"
+    return None
