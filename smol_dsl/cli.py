@@ -129,8 +129,9 @@ def _plot(args: argparse.Namespace) -> int:
     for schedule in schedules:
         if schedule.tail_phases(args.phases) == 0:
             print(
-                f"smol-dsl plot: note: with {args.phases} phases no phase of {schedule.name} runs wholly at "
-                f"alpha = 1 (its tail starts at {float(schedule.tail_start) * 100:g}%); the runner refuses such a count",
+                f"smol-dsl plot: note: with {args.phases} phases no phase of {schedule.name} runs wholly "
+                f"at alpha = 1 (its tail starts at {float(schedule.tail_start) * 100:g}%); "
+                "the runner refuses such a count",
                 file=sys.stderr,
             )
     import jax
