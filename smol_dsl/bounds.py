@@ -74,11 +74,13 @@ def real(value: sp.Expr | None) -> float | None:
         return None
     try:
         number = complex(sp.N(value, 30))
+    except OverflowError:
+        return math.inf if value.is_positive else -math.inf if value.is_negative else None
     except (TypeError, ValueError):
         return None
-    if not math.isfinite(number.real) or abs(number.imag) > 1e-30:
+    if math.isnan(number.real) or abs(number.imag) > 1e-30:
         return None
-    return number.real
+    return number.real  # may be +-inf for a finite value beyond float64
 
 
 def simplified(expr: sp.Expr) -> sp.Expr:
@@ -228,11 +230,8 @@ def extrema(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Extrema | No
             return Extrema(low, high, True)
     except _SYMPY_FAILURES:
         pass
-    try:
-        with time_limit(ENCLOSURE_SECONDS):
-            enclosed = enclosure(expr, start, end)
-    except _SYMPY_FAILURES:
-        enclosed = None
+    with time_limit(ENCLOSURE_SECONDS):  # a time-out here is reported as one
+        enclosed = enclosure(expr, start, end)
     return None if enclosed is None else Extrema(*enclosed, False)
 
 

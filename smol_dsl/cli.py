@@ -131,7 +131,7 @@ def _plot(args: argparse.Namespace) -> int:
             print(
                 f"smol-dsl plot: note: with {args.phases} phases no phase of {schedule.name} runs wholly "
                 f"at alpha = 1 (its tail starts at {float(schedule.tail_start) * 100:g}%); "
-                "the runner refuses such a count",
+                "a run needs at least one phase at alpha = 1 to compare schedules on the same body",
                 file=sys.stderr,
             )
     import jax

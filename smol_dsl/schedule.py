@@ -124,8 +124,8 @@ class Schedule:
             # phase k starts at step ceil(k * total / N), computed exactly here so that a
             # traced int32 count never overflows in count * N
             first_steps = np.asarray([-(-k * total_steps // num_phases) for k in range(1, num_phases)], dtype=np.int64)
-            if total_steps >= 2**31 - 1:
-                raise ValueError(f"total_steps must be below 2**31 for int32 step counts, not {total_steps}")
+            if total_steps > 2**31 - 1:
+                raise ValueError(f"total_steps must be at most 2**31 - 1 for int32 step counts, not {total_steps}")
 
         def schedule(count: jax.typing.ArrayLike) -> jax.Array:
             import jax.numpy as jnp

@@ -222,6 +222,10 @@ class _Builder:
         close = difflib.get_close_matches(node.id, known, n=1)
         if node.id in ("t", "u"):
             hint = f"`{node.id}` is only defined inside an `expr` segment"
+        elif node.id in RESERVED_WORDS:
+            hint = f"`{node.id}` is a keyword of the language, not a value" + (
+                "; alpha = 1 is written `1`" if node.id == "tail" else ""
+            )
         elif node.id.lower() in ("nan", "inf", "infinity"):
             hint = "alpha and positions must be finite numbers"
         elif close:

@@ -129,8 +129,9 @@ def _number(token: Token) -> ast.Number:
         hint="numbers must be 0 or between about 2.2e-308 and 1.8e308 (64-bit floats); "
         "alpha is a modest factor like 1.5",
     )
-    _, _, exponent = text.lower().partition("e")
-    if exponent and abs(int(exponent)) > MAX_EXPONENT_DIGITS:  # before building a huge integer
+    mantissa, _, exponent = text.lower().partition("e")
+    huge_exponent = exponent and abs(int(exponent)) > MAX_EXPONENT_DIGITS
+    if huge_exponent and mantissa.strip("0.") != "":  # refuse before building a huge integer
         raise out_of_range
     value = Fraction(text)
     if value != 0 and not FLOAT_MIN <= value <= FLOAT_MAX:
@@ -300,8 +301,9 @@ def _token_type(error: UnexpectedInput) -> str | None:
 def _example_hint(error: UnexpectedInput) -> str | None:
     """The hint of the known mistake that fails in the same parser state, if any.
 
-    Lark's own `match_examples` does this too; ours prefers an example whose unexpected
-    token has the same type, and never fails.
+    The idea of Lark's `match_examples`, reimplemented: Lark 1.3.1's version can fail
+    while formatting a debug message, and ours prefers an example whose unexpected token
+    has the same type.
     """
     fallback = None
     for label, known in _example_errors():
@@ -333,6 +335,8 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
             hint = "group with round brackets `( )`"
         elif char == "." and error.pos_in_stream > 0 and text[error.pos_in_stream - 1].isdigit():
             hint = "a number needs digits after its decimal point (`1.0`, not `1.`); ranges are written `..`"
+        elif char == '"':
+            hint = 'a string ends with `"` on the same line, e.g. `name "SMOL"`'
         elif char == "'":
             hint = 'strings are written in double quotes, e.g. `name "SMOL"`'
         if hint is None:

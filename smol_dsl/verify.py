@@ -2,9 +2,9 @@
 
 Every check is done with exact sympy arithmetic over each piece's real interval: extrema
 from critical points (`sympy.calculus.util.minimum`/`maximum`), monotonicity from the sign
-of the derivative. Where sympy cannot find critical points, a rigorous interval enclosure
-(`AccumBounds` over sub-intervals) is used instead and the certificate says so. Nothing is
-sampled.
+of the derivative, reality from the domains of roots, logarithms and divisions. Where sympy
+cannot find critical points, a rigorous enclosure by interval arithmetic is used instead
+and the certificate says so (see `smol_dsl.bounds`). Nothing is sampled.
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ class Certificate:
             extent = f"{percent(p.start)} .. {percent(p.end)}"
             note = "" if p.exact else "  (interval enclosure)"
             lines.append(
-                f"    #{p.segment:<2} {extent:<16} {p.kind:<14} alpha {p.minimum:.6g} .. {p.maximum:.6g}"
+                f"    #{p.segment:<2} {extent:<16} {p.kind:<15} alpha {p.minimum:.6g} .. {p.maximum:.6g}"
                 f"   {p.monotone}{note}"
             )
         if self.joins:
@@ -236,30 +236,43 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
 
 def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: list[PieceCertificate]) -> None:
     where = f"segment {segment.index + 1} ({segment.describe_range()}, {segment.kind})"
-    low = min(p.minimum for p in pieces)
-    high = max(p.maximum for p in pieces)
+    lowest = min(pieces, key=lambda p: p.minimum)
+    highest = max(pieces, key=lambda p: p.maximum)
+    low, high = lowest.minimum, highest.maximum
+    # Where an extremum is only an interval-arithmetic bound, say so rather than claim
+    # that alpha reaches it.
+    goes_down = "goes down to" if lowest.exact else "could not be shown to stay above its bound of"
+    reaches = "reaches" if highest.exact else "could not be shown to stay below its bound of"
+    loose = (
+        ""
+        if lowest.exact and highest.exact
+        else (
+            "; its exact extrema could not be found, and the interval-arithmetic bound is not tight enough: "
+            "simplify the expression or split the segment"
+        )
+    )
     if not low > 0:
         raise _fail(
-            f"alpha must stay above 0, but {where} goes down to {low:.6g}",
+            f"alpha must stay above 0, but {where} {goes_down} {low:.6g}",
             segment.span,
-            "alpha scales the actuators' gear; 0 or less would switch them off or reverse them",
+            "alpha scales the actuators' gear; 0 or less would switch them off or reverse them" + loose,
         )
     if high > FLOAT32_MAX:
-        raise _fail(f"{where} reaches alpha = {high:.3g}, beyond float32", segment.span, "use a modest alpha")
+        raise _fail(f"{where} {reaches} alpha = {high:.3g}, beyond float32", segment.span, "use a modest alpha")
     if program.bounds is not None:
         lo, hi, _ = program.bounds
         lo_f, hi_f = float(lo), float(hi)
         if low < lo_f:
             raise _fail(
-                f"{where} goes down to alpha = {low:.6g}, {lo_f - low:.6g} below the declared bound {lo_f:.6g}",
+                f"{where} {goes_down} alpha = {low:.6g}, {lo_f - low:.6g} below the declared bound {lo_f:.6g}",
                 segment.span,
-                f"raise the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`",
+                f"raise the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`" + loose,
             )
         if high > hi_f:
             raise _fail(
-                f"{where} reaches alpha = {high:.6g}, {high - hi_f:.6g} above the declared bound {hi_f:.6g}",
+                f"{where} {reaches} alpha = {high:.6g}, {high - hi_f:.6g} above the declared bound {hi_f:.6g}",
                 segment.span,
-                f"lower the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`",
+                f"lower the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`" + loose,
             )
     if segment.monotone is not None:
         allowed = {"constant", segment.monotone}

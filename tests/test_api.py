@@ -157,3 +157,4 @@ def test_optax_phases_do_not_overflow_int32(library):
     assert float(stepped(89_999_999)) == pytest.approx(1.5 - 0.5 * 89 / 90)
     with pytest.raises(ValueError):
         library["smol"].as_optax(2**31, num_phases=100)
+    assert float(library["smol"].as_optax(2**31 - 1, num_phases=100)(2**31 - 2)) == 1.0
