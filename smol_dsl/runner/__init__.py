@@ -1,0 +1,17 @@
+"""The bundled Brax MAP-Elites runner: phased training under a schedule of actuator strength."""
+
+from smol_dsl.runner.checkpoint import Archive, load_archive
+from smol_dsl.runner.config import PRESETS, RunConfig, preset_config
+from smol_dsl.runner.run import RunError, RunResult, run_experiment, schedule_key
+
+__all__ = [
+    "PRESETS",
+    "Archive",
+    "RunConfig",
+    "RunError",
+    "RunResult",
+    "load_archive",
+    "preset_config",
+    "run_experiment",
+    "schedule_key",
+]

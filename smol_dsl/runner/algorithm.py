@@ -1,0 +1,193 @@
+"""MAP-Elites with a changing body: QDax's ask/tell loop, α-aware scoring, re-evaluation.
+
+The pieces are pure and jitted once each, with α a traced argument, so a run of any number
+of phases compiles the same few programs:
+
+- `ask`: offspring by iso+line variation of uniformly selected elites (QDax);
+- `score`: the task's rollouts at actuator scale α;
+- `tell`: insertion into the CVT archive (QDax), after non-finite results are dropped;
+- `reevaluate`: at a phase boundary, every filled cell is scored again under the new α,
+  elites die with the schedule's extinction probability, and the survivors go into a
+  fresh archive (collisions keep the best). It runs in fixed-size chunks over the filled
+  cells only, so its cost is proportional to the filled cells, not to the archive's size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire, compute_cvt_centroids
+from qdax.core.emitters.mutation_operators import isoline_variation
+from qdax.core.emitters.standard_emitters import MixingEmitter
+from qdax.core.map_elites import MAPElites
+from qdax.utils.metrics import default_qd_metrics
+
+from smol_dsl.tasks.base import ScoringFn
+
+Metrics = dict[str, jax.Array]
+
+
+def drop_non_finite(fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Mark results with a non-finite fitness or descriptor as empty (-inf, never inserted).
+
+    Returns the cleaned fitnesses and descriptors, and how many were dropped.
+    """
+    finite = jnp.isfinite(fitnesses) & jnp.all(jnp.isfinite(descriptors), axis=-1)
+    fitnesses = jnp.where(finite, fitnesses, -jnp.inf)
+    descriptors = jnp.where(finite[:, None], descriptors, 0.0)
+    return fitnesses, descriptors, jnp.sum(~finite)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """What one scored batch contributed: counts for the metrics log."""
+
+    evaluated: int
+    non_finite: int
+
+
+class PhasedMapElites:
+    """The jitted building blocks of a phased MAP-Elites run for one scoring function."""
+
+    def __init__(
+        self,
+        scoring_fn: ScoringFn,
+        init_genotypes: Callable[[jax.Array, int], Any],
+        *,
+        batch_size: int,
+        qd_offset: float,
+        iso_sigma: float,
+        line_sigma: float,
+    ) -> None:
+        self.batch_size = batch_size
+        self.init_genotypes = init_genotypes
+        emitter = MixingEmitter(
+            mutation_fn=None,  # type: ignore[arg-type]
+            variation_fn=partial(isoline_variation, iso_sigma=iso_sigma, line_sigma=line_sigma),
+            variation_percentage=1.0,
+            batch_size=batch_size,
+        )
+        self.map_elites = MAPElites(
+            scoring_function=None,
+            emitter=emitter,
+            metrics_function=partial(default_qd_metrics, qd_offset=qd_offset),
+        )
+        self.score = jax.jit(scoring_fn)
+        self.ask = jax.jit(self.map_elites.ask)
+        self._tell = jax.jit(self._tell_finite)
+        self._insert = jax.jit(self._insert_finite)
+        self.metrics = jax.jit(partial(default_qd_metrics, qd_offset=qd_offset))
+
+    # ------------------------------------------------------------------ training
+    def _tell_finite(
+        self,
+        genotypes: Any,
+        fitnesses: jax.Array,
+        descriptors: jax.Array,
+        repertoire: MapElitesRepertoire,
+        emitter_state: Any,
+    ) -> tuple[MapElitesRepertoire, Any, Metrics, jax.Array]:
+        fitnesses, descriptors, dropped = drop_non_finite(fitnesses, descriptors)
+        repertoire, emitter_state, metrics = self.map_elites.tell(
+            genotypes=genotypes,
+            fitnesses=fitnesses,
+            descriptors=descriptors,
+            repertoire=repertoire,
+            emitter_state=emitter_state,
+        )
+        return repertoire, emitter_state, metrics, dropped
+
+    def init(
+        self, centroids: jax.Array, alpha: jax.Array, key: jax.Array
+    ) -> tuple[MapElitesRepertoire, Any, Metrics, Evaluation]:
+        """Score a random initial population at alpha and build the first archive."""
+        init_key, score_key = jax.random.split(key)
+        genotypes = self.init_genotypes(init_key, self.batch_size)
+        fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
+        empty = self.empty_archive(genotypes, centroids)
+        repertoire, emitter_state, metrics, dropped = self._tell(genotypes, fitnesses, descriptors, empty, None)
+        return repertoire, emitter_state, metrics, Evaluation(self.batch_size, int(dropped))
+
+    def generation(
+        self, repertoire: MapElitesRepertoire, emitter_state: Any, alpha: jax.Array, key: jax.Array
+    ) -> tuple[MapElitesRepertoire, Any, Metrics, Evaluation]:
+        """One MAP-Elites generation at actuator scale alpha."""
+        ask_key, score_key = jax.random.split(key)
+        genotypes, _ = self.ask(repertoire, emitter_state, ask_key)
+        fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
+        repertoire, emitter_state, metrics, dropped = self._tell(
+            genotypes, fitnesses, descriptors, repertoire, emitter_state
+        )
+        return repertoire, emitter_state, metrics, Evaluation(self.batch_size, int(dropped))
+
+    def reseed(
+        self, repertoire: MapElitesRepertoire, emitter_state: Any, alpha: jax.Array, key: jax.Array
+    ) -> tuple[MapElitesRepertoire, Any, Metrics, Evaluation]:
+        """A generation of fresh random policies, for an archive that extinction emptied."""
+        init_key, score_key = jax.random.split(key)
+        genotypes = self.init_genotypes(init_key, self.batch_size)
+        fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
+        repertoire, emitter_state, metrics, dropped = self._tell(
+            genotypes, fitnesses, descriptors, repertoire, emitter_state
+        )
+        return repertoire, emitter_state, metrics, Evaluation(self.batch_size, int(dropped))
+
+    # ------------------------------------------------------------------ re-evaluation
+    @staticmethod
+    def empty_archive(example_genotypes: Any, centroids: jax.Array) -> MapElitesRepertoire:
+        one = jax.tree.map(lambda x: x[0], example_genotypes)
+        return MapElitesRepertoire.init_default(genotype=one, centroids=centroids)
+
+    def _insert_finite(
+        self,
+        archive: MapElitesRepertoire,
+        genotypes: Any,
+        fitnesses: jax.Array,
+        descriptors: jax.Array,
+        valid: jax.Array,
+        survives: jax.Array,
+    ) -> tuple[MapElitesRepertoire, jax.Array]:
+        finite = jnp.isfinite(fitnesses) & jnp.all(jnp.isfinite(descriptors), axis=-1)
+        fitnesses, descriptors, _ = drop_non_finite(fitnesses, descriptors)
+        fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
+        return archive.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
+
+    def reevaluate(
+        self, repertoire: MapElitesRepertoire, alpha: jax.Array, extinction: float, key: jax.Array
+    ) -> tuple[MapElitesRepertoire, Evaluation]:
+        """Every elite re-scored at alpha, thinned by extinction, in a fresh archive."""
+        filled = np.flatnonzero(np.asarray(repertoire.fitnesses).reshape(-1) > -np.inf)
+        fresh = self.empty_archive(repertoire.genotypes, repertoire.centroids)
+        non_finite = 0
+        for start in range(0, len(filled), self.batch_size):
+            chunk = filled[start : start + self.batch_size]
+            valid = np.zeros(self.batch_size, dtype=bool)
+            valid[: len(chunk)] = True
+            index = np.resize(chunk, self.batch_size)  # pad by repeating; padding is not kept
+            genotypes = jax.tree.map(lambda x: x[index], repertoire.genotypes)
+            key, score_key, death_key = jax.random.split(key, 3)
+            fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
+            survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
+            fresh, dropped = self._insert(fresh, genotypes, fitnesses, descriptors, jnp.asarray(valid), survives)
+            non_finite += int(dropped)
+        return fresh, Evaluation(len(filled), non_finite)
+
+
+def cvt_centroids(
+    num_centroids: int, low: tuple[float, ...], high: tuple[float, ...], num_samples: int, key: jax.Array
+) -> jax.Array:
+    """QDax's CVT tessellation of the descriptor box."""
+    return compute_cvt_centroids(
+        num_descriptors=len(low),
+        num_init_cvt_samples=num_samples,
+        num_centroids=num_centroids,
+        minval=list(low),
+        maxval=list(high),
+        key=key,
+    )

@@ -1,0 +1,183 @@
+"""Atomic checkpoints of a run, and the final archive's `.npz` layout.
+
+A checkpoint is written to a temporary file in the run directory, flushed to disk and
+renamed over the previous one, so a run killed at any moment leaves either the old or the
+new checkpoint, never a torn one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
+
+CHECKPOINT = "checkpoint.npz"
+
+
+def atomic_write(path: Path, write: Any) -> None:
+    """Call write(file) on a temporary file, fsync it, and rename it over path."""
+    temporary = path.with_name(path.name + ".tmp")
+    with open(temporary, "wb") as file:
+        write(file)
+        file.flush()
+        os.fsync(file.fileno())
+    os.replace(temporary, path)
+    directory = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def _leaf_names(tree: Any) -> list[str]:
+    paths = jax.tree_util.tree_flatten_with_path(tree)[0]
+    return ["/".join(_key_name(k) for k in path) for path, _ in paths]
+
+
+def _key_name(key: Any) -> str:
+    for attribute in ("key", "name", "idx"):
+        if hasattr(key, attribute):
+            return str(getattr(key, attribute))
+    return str(key)
+
+
+@dataclass
+class RunState:
+    """Everything a run needs to continue exactly where it stopped."""
+
+    repertoire: MapElitesRepertoire
+    emitter_state: Any
+    key: jax.Array
+    generation: int  # the last generation done (0: the initial population)
+    phase: int
+    evaluations: int
+    reevaluations: int
+    non_finite: int
+    rows: list[dict[str, Any]]
+    finished: bool = False
+
+
+def save_checkpoint(directory: Path, state: RunState) -> None:
+    """Write the run's state atomically to directory/checkpoint.npz."""
+    if state.emitter_state is not None:
+        raise NotImplementedError("only stateless emitters (iso+line) are checkpointed")
+    arrays = {
+        f"genotypes/{name}": np.asarray(leaf)
+        for name, leaf in zip(
+            _leaf_names(state.repertoire.genotypes), jax.tree.leaves(state.repertoire.genotypes), strict=True
+        )
+    }
+    arrays["fitnesses"] = np.asarray(state.repertoire.fitnesses)
+    arrays["descriptors"] = np.asarray(state.repertoire.descriptors)
+    arrays["centroids"] = np.asarray(state.repertoire.centroids)
+    arrays["key"] = np.asarray(jax.random.key_data(state.key))
+    progress = {
+        "generation": state.generation,
+        "phase": state.phase,
+        "evaluations": state.evaluations,
+        "reevaluations": state.reevaluations,
+        "non_finite": state.non_finite,
+        "finished": state.finished,
+        "rows": state.rows,
+    }
+    arrays["progress"] = np.asarray(json.dumps(progress))
+    atomic_write(directory / CHECKPOINT, lambda file: np.savez(file, **arrays))
+
+
+def load_checkpoint(directory: Path, genotype_template: Any) -> RunState | None:
+    """The state saved in directory, shaped like genotype_template, or None if there is none."""
+    path = directory / CHECKPOINT
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        names = _leaf_names(genotype_template)
+        leaves = [data[f"genotypes/{name}"] for name in names]
+        genotypes = jax.tree.unflatten(jax.tree.structure(genotype_template), [jax.numpy.asarray(x) for x in leaves])
+        repertoire = MapElitesRepertoire(
+            genotypes=genotypes,
+            fitnesses=jax.numpy.asarray(data["fitnesses"]),
+            descriptors=jax.numpy.asarray(data["descriptors"]),
+            centroids=jax.numpy.asarray(data["centroids"]),
+            extra_scores={},
+            keys_extra_scores=(),
+        )
+        key = jax.random.wrap_key_data(jax.numpy.asarray(data["key"]))
+        progress = json.loads(str(data["progress"]))
+    return RunState(
+        repertoire=repertoire,
+        emitter_state=None,
+        key=key,
+        generation=progress["generation"],
+        phase=progress["phase"],
+        evaluations=progress["evaluations"],
+        reevaluations=progress["reevaluations"],
+        non_finite=progress["non_finite"],
+        rows=progress["rows"],
+        finished=progress["finished"],
+    )
+
+
+def save_archive(path: Path, repertoire: MapElitesRepertoire) -> None:
+    """The final archive as `.npz`: `genotypes/<param path>` (C, ...), `fitnesses` (C,),
+    `descriptors` (C, D), `centroids` (C, D), `filled` (C,); empty cells have fitness -inf."""
+    arrays = {
+        f"genotypes/{name}": np.asarray(leaf)
+        for name, leaf in zip(_leaf_names(repertoire.genotypes), jax.tree.leaves(repertoire.genotypes), strict=True)
+    }
+    fitnesses = np.asarray(repertoire.fitnesses).reshape(-1)
+    arrays.update(
+        fitnesses=fitnesses,
+        descriptors=np.asarray(repertoire.descriptors),
+        centroids=np.asarray(repertoire.centroids),
+        filled=fitnesses > -np.inf,
+    )
+    atomic_write(path, lambda file: np.savez(file, **arrays))
+
+
+@dataclass(frozen=True)
+class Archive:
+    """A saved archive: policy parameters as a nested dict (flax layout) and its scores."""
+
+    genotypes: dict[str, Any]
+    fitnesses: np.ndarray
+    descriptors: np.ndarray
+    centroids: np.ndarray
+    filled: np.ndarray
+
+    def elite(self, cell: int) -> dict[str, Any]:
+        """The policy parameters in one cell, ready for `policy.apply(params, obs)`."""
+        return jax.tree.map(lambda x: x[cell], self.genotypes)
+
+    @property
+    def best_cell(self) -> int:
+        return int(np.argmax(self.fitnesses))
+
+
+def load_archive(path: str | os.PathLike[str]) -> Archive:
+    """Load `archive.npz` from a run directory (or its path)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "archive.npz"
+    with np.load(path, allow_pickle=False) as data:
+        genotypes: dict[str, Any] = {}
+        for name in data.files:
+            if not name.startswith("genotypes/"):
+                continue
+            node = genotypes
+            *parents, leaf = name.split("/")[1:]
+            for part in parents:
+                node = node.setdefault(part, {})
+            node[leaf] = data[name]
+        return Archive(
+            genotypes=genotypes,
+            fitnesses=data["fitnesses"],
+            descriptors=data["descriptors"],
+            centroids=data["centroids"],
+            filled=data["filled"],
+        )

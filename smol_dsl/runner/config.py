@@ -1,0 +1,118 @@
+"""Run configuration: the paper's settings, and a `quick` preset sized for a 2-core CPU."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from smol_dsl.tasks import TASK_NAMES
+
+ISO_SIGMA = 0.005  # the paper's iso+line variation
+LINE_SIGMA = 0.05
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that determines a run, besides the schedule's text.
+
+    `evaluations` is the training budget (offspring evaluated, the initial population
+    included); re-evaluations at phase boundaries are counted separately.
+    """
+
+    task: str
+    evaluations: int
+    batch_size: int
+    num_phases: int
+    num_centroids: int
+    episode_length: int
+    hidden_layer_sizes: tuple[int, ...]
+    seed: int = 0
+    iso_sigma: float = ISO_SIGMA
+    line_sigma: float = LINE_SIGMA
+    num_init_cvt_samples: int = 50_000
+    preset: str = "custom"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def generations(self) -> int:
+        """Generations after the initial population (which is generation 0)."""
+        return self.evaluations // self.batch_size - 1
+
+    def phase_of_generation(self, generation: int) -> int:
+        """The phase that generation g (1..generations) trains in: equal shares, in order."""
+        return ((generation - 1) * self.num_phases) // self.generations
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> RunConfig:
+        data = json.loads(text)
+        data["hidden_layer_sizes"] = tuple(data["hidden_layer_sizes"])
+        return cls(**data)
+
+
+# The paper (Table "Hyperparameters for each task"): 1e7 evaluations, 100 phases, 1024 CVT
+# centroids, iso+line variation.
+PAPER: dict[str, dict[str, Any]] = {
+    "walker2d": dict(batch_size=8192, episode_length=1000, hidden_layer_sizes=(64, 64)),
+    "halfcheetah": dict(batch_size=8192, episode_length=1000, hidden_layer_sizes=(64, 64)),
+    "ant_omni": dict(batch_size=1024, episode_length=100, hidden_layer_sizes=(256, 256)),
+}
+PAPER_COMMON = dict(evaluations=10_000_000, num_phases=100, num_centroids=1024)
+
+# Sized so that `smol-dsl run walker2d human.sched` finishes in about 5 minutes on 2 CPU
+# cores (measured: ~210 walker2d evaluations/s at 100 steps, ~50 halfcheetah, ~90 ant).
+QUICK: dict[str, dict[str, Any]] = {
+    "walker2d": dict(batch_size=128, episode_length=100, evaluations=32_768, hidden_layer_sizes=(64, 64)),
+    "halfcheetah": dict(batch_size=64, episode_length=100, evaluations=8_192, hidden_layer_sizes=(64, 64)),
+    "ant_omni": dict(batch_size=64, episode_length=100, evaluations=12_800, hidden_layer_sizes=(256, 256)),
+}
+QUICK_COMMON = dict(num_phases=20, num_centroids=256)
+
+PRESETS = ("quick", "paper")
+
+
+def preset_config(task: str, preset: str = "quick", **overrides: Any) -> RunConfig:
+    """The preset's settings for a task, with any field overridden (None means keep)."""
+    if task not in TASK_NAMES:
+        raise ValueError(f"unknown task {task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; the presets are {', '.join(PRESETS)}")
+    values: dict[str, Any] = {**PAPER_COMMON, **PAPER[task]} if preset == "paper" else {**QUICK_COMMON, **QUICK[task]}
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    return RunConfig(task=task, preset=preset, **values)
+
+
+def check_config(config: RunConfig, tail_phases: int, tail_start: float) -> None:
+    """Raise ValueError, with a fix, for settings that cannot make a fair run."""
+    if config.batch_size < 1:
+        raise ValueError(f"--batch-size must be at least 1, not {config.batch_size}")
+    if config.num_phases < 1:
+        raise ValueError(f"--phases must be at least 1, not {config.num_phases}")
+    if config.num_centroids < 2:
+        raise ValueError(f"--centroids must be at least 2, not {config.num_centroids}")
+    if config.episode_length < 1:
+        raise ValueError(f"--episode-length must be at least 1, not {config.episode_length}")
+    if config.generations < config.num_phases:
+        need = (config.num_phases + 1) * config.batch_size
+        raise ValueError(
+            f"a budget of {config.evaluations} evaluations at batch size {config.batch_size} gives "
+            f"{max(config.generations, 0)} generations, fewer than the {config.num_phases} phases; "
+            f"use --evals {need} or more, fewer --phases, or a smaller --batch-size"
+        )
+    if tail_phases < 1:
+        raise ValueError(
+            f"with {config.num_phases} phases no phase lies wholly in the schedule's alpha = 1 tail "
+            f"(from {tail_start:.0%}), so the run would not end on the standard body; "
+            f"use at least {_phases_for_tail(tail_start)} phases"
+        )
+
+
+def _phases_for_tail(tail_start: float) -> int:
+    phases = 1
+    while phases - int(-(-tail_start * phases // 1)) < 1:
+        phases += 1
+    return phases

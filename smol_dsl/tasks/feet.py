@@ -1,0 +1,46 @@
+"""Forward-locomotion tasks whose descriptor is the duty factor of each foot."""
+
+from __future__ import annotations
+
+import brax.envs
+import jax
+import jax.numpy as jnp
+from brax.envs.base import State
+
+from smol_dsl.tasks.base import Task, deterministic_init_state, make_policy, mean_over_valid
+
+
+def feet_task(
+    env_name: str,
+    feet: tuple[str, ...],
+    reward_offset: float,
+    episode_length: int,
+    hidden_layer_sizes: tuple[int, ...],
+    init_key: jax.Array | None,
+    backend: str,
+) -> Task:
+    """A Brax env scored by its own reward, described by the proportion of steps each
+    foot touches the ground (contacts need the pipeline's debug output)."""
+    env = brax.envs.get_environment(env_name, backend=backend, debug=True)
+    feet_idx = jnp.asarray([i for i, name in enumerate(env.sys.link_names) if name in feet])
+
+    def feet_contact(state: State) -> jax.Array:
+        contact = state.pipeline_state.contact
+        touching = (contact.link_idx[1][None, :] == feet_idx[:, None]) & (contact.dist[None, :] <= 0)
+        return jnp.any(touching, axis=-1).astype(jnp.float32)
+
+    key = jax.random.key(0) if init_key is None else init_key
+    return Task(
+        name=env_name,
+        env=env,
+        policy=make_policy(hidden_layer_sizes, env.action_size),
+        episode_length=episode_length,
+        descriptor_size=len(feet),
+        descriptor_low=(0.0,) * len(feet),
+        descriptor_high=(1.0,) * len(feet),
+        qd_offset=reward_offset * episode_length,
+        init_state=deterministic_init_state(env, key),
+        state_descriptor=feet_contact,
+        reward=lambda state: state.reward,
+        final_descriptor=mean_over_valid,
+    )

@@ -1,0 +1,23 @@
+"""Walker2d, "uni": run forward; descriptor = each foot's duty factor (QDax `walker2d_uni`)."""
+
+from __future__ import annotations
+
+import jax
+
+from smol_dsl.tasks.base import Task
+from smol_dsl.tasks.feet import feet_task
+
+FEET = ("foot", "foot_left")
+REWARD_OFFSET = 1.413  # QDax's offset for walker2d_uni: keeps per-step rewards positive
+
+
+def make(
+    episode_length: int = 1000,
+    hidden_layer_sizes: tuple[int, ...] = (64, 64),
+    *,
+    init_key: jax.Array | None = None,
+    backend: str = "spring",
+) -> Task:
+    """The walker2d task; fitness = sum of Brax's walker2d reward (forward velocity,
+    healthy bonus, control cost) until the walker falls."""
+    return feet_task("walker2d", FEET, REWARD_OFFSET, episode_length, hidden_layer_sizes, init_key, backend)
