@@ -82,7 +82,35 @@ def build_parser() -> argparse.ArgumentParser:
     )
     plot.add_argument("--phases", type=_positive_int, default=100, metavar="N", help="number of phases (default 100)")
     plot.add_argument("--seed", type=_int, default=0, metavar="S", help="seed of random segments (default 0)")
+    run = commands.add_parser(
+        "run",
+        help="train locomotion controllers with MAP-Elites under a schedule",
+        description="Train MLP controllers for a Brax task with MAP-Elites while the schedule scales the "
+        "actuators' gear (phase k of N at alpha_k; the archive is re-evaluated at every phase boundary). "
+        "The default preset `quick` finishes in about 5 minutes on 2 CPU cores; `--preset paper` is the "
+        "paper's experiment (1e7 evaluations, 100 phases, 1024 cells; for a GPU). Writes a run directory; "
+        "see docs/runner.md.",
+    )
+    run.add_argument("task", metavar="TASK", help="walker2d, halfcheetah or ant_omni")
+    run.add_argument("schedule", metavar="SCHEDULE", help="a .sched path or a bundled name")
+    run.add_argument("--preset", default="quick", metavar="NAME", help="quick (default) or paper")
+    run.add_argument("--seed", type=_int, default=None, metavar="S", help="random seed (default 0)")
+    run.add_argument("--evals", type=_positive_int_large, default=None, metavar="E", help="training evaluations")
+    run.add_argument("--phases", type=_positive_int, default=None, metavar="N", help="number of phases")
+    run.add_argument("--batch-size", type=_positive_int, default=None, metavar="B", help="offspring per generation")
+    run.add_argument("--centroids", type=_positive_int, default=None, metavar="C", help="CVT cells in the archive")
+    run.add_argument("--episode-length", type=_positive_int, default=None, metavar="L", help="steps per episode")
+    run.add_argument("--out", metavar="DIR", help="run directory (default runs/TASK-SCHEDULE-seedS)")
+    run.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
+
+
+def _positive_int_large(text: str) -> int:
+    value = _int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
 
 
 def _load_all(names: Sequence[str]) -> tuple[list, list[str]]:
@@ -145,11 +173,69 @@ def _plot(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _run(args: argparse.Namespace) -> int:
+    from smol_dsl import ScheduleError, load
+    from smol_dsl.tasks import TASK_NAMES
+
+    if args.task not in TASK_NAMES:
+        raise UsageError(f"unknown task {args.task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    try:
+        schedule = load(args.schedule)
+    except ScheduleError as error:
+        print(error, file=sys.stderr)
+        return EXIT_USAGE
+    from smol_dsl.runner import PRESETS, RunError, check_config, preset_config, run_experiment
+    from smol_dsl.runner.progress import ProgressBar, summary_line
+
+    if args.preset not in PRESETS:
+        raise UsageError(f"unknown preset {args.preset!r}; the presets are {', '.join(PRESETS)}")
+    config = preset_config(
+        args.task,
+        args.preset,
+        seed=args.seed,
+        evaluations=args.evals,
+        num_phases=args.phases,
+        batch_size=args.batch_size,
+        num_centroids=args.centroids,
+        episode_length=args.episode_length,
+    )
+    try:
+        check_config(config, schedule)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    stem = Path(schedule.path).stem if schedule.path else "schedule"
+    out = Path(args.out) if args.out else Path("runs") / f"{args.task}-{stem}-seed{config.seed}"
+    print(
+        f"smol-dsl run: {args.task} under {schedule.name} ({args.schedule}), preset {config.preset}: "
+        f"{config.evaluations} evaluations in batches of {config.batch_size}, {config.num_phases} phases, "
+        f"{config.num_centroids} cells, {config.episode_length}-step episodes, seed {config.seed} -> {out}",
+        file=sys.stderr,
+    )
+    if config.preset == "quick":
+        print(
+            "smol-dsl run: the quick preset is sized for about 5 minutes on 2 CPU cores; "
+            "--preset paper runs the paper's experiment (1e7 evaluations; for a GPU)",
+            file=sys.stderr,
+        )
+    bar = None if args.no_progress else ProgressBar(config)
+    try:
+        result = run_experiment(
+            args.task, schedule, config, out_dir=out, resume=args.resume, progress=bar.update if bar else None
+        )
+    except RunError as error:
+        raise UsageError(str(error)) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    print(summary_line(result, schedule))
+    return EXIT_OK
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `smol-dsl` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)  # exits with status 2 on bad flags
-    handlers = {"check": _check, "plot": _plot}
+    handlers = {"check": _check, "plot": _plot, "run": _run}
     try:
         return handlers[args.command](args)
     except UsageError as error:

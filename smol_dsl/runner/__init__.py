@@ -1,7 +1,7 @@
 """The bundled Brax MAP-Elites runner: phased training under a schedule of actuator strength."""
 
 from smol_dsl.runner.checkpoint import Archive, load_archive
-from smol_dsl.runner.config import PRESETS, RunConfig, preset_config
+from smol_dsl.runner.config import PRESETS, RunConfig, check_config, preset_config
 from smol_dsl.runner.run import RunError, RunResult, run_experiment, schedule_key
 
 __all__ = [
@@ -10,6 +10,7 @@ __all__ = [
     "RunConfig",
     "RunError",
     "RunResult",
+    "check_config",
     "load_archive",
     "preset_config",
     "run_experiment",

@@ -83,6 +83,7 @@ class PhasedMapElites:
         self._tell = jax.jit(self._tell_finite)
         self._insert = jax.jit(self._insert_finite)
         self.metrics = jax.jit(partial(default_qd_metrics, qd_offset=qd_offset))
+        self._gather = jax.jit(lambda tree, index: jax.tree.map(lambda x: x[index], tree))
 
     # ------------------------------------------------------------------ training
     def _tell_finite(
@@ -170,7 +171,7 @@ class PhasedMapElites:
             valid = np.zeros(self.batch_size, dtype=bool)
             valid[: len(chunk)] = True
             index = np.resize(chunk, self.batch_size)  # pad by repeating; padding is not kept
-            genotypes = jax.tree.map(lambda x: x[index], repertoire.genotypes)
+            genotypes = self._gather(repertoire.genotypes, jnp.asarray(index))
             key, score_key, death_key = jax.random.split(key, 3)
             fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
             survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction

@@ -7,6 +7,7 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
+from smol_dsl.schedule import Schedule
 from smol_dsl.tasks import TASK_NAMES
 
 ISO_SIGMA = 0.005  # the paper's iso+line variation
@@ -86,33 +87,28 @@ def preset_config(task: str, preset: str = "quick", **overrides: Any) -> RunConf
     return RunConfig(task=task, preset=preset, **values)
 
 
-def check_config(config: RunConfig, tail_phases: int, tail_start: float) -> None:
+def check_config(config: RunConfig, schedule: Schedule) -> None:
     """Raise ValueError, with a fix, for settings that cannot make a fair run."""
-    if config.batch_size < 1:
-        raise ValueError(f"--batch-size must be at least 1, not {config.batch_size}")
-    if config.num_phases < 1:
-        raise ValueError(f"--phases must be at least 1, not {config.num_phases}")
-    if config.num_centroids < 2:
-        raise ValueError(f"--centroids must be at least 2, not {config.num_centroids}")
-    if config.episode_length < 1:
-        raise ValueError(f"--episode-length must be at least 1, not {config.episode_length}")
+    for name, value, least in (
+        ("--evals", config.evaluations, 1),
+        ("--batch-size", config.batch_size, 1),
+        ("--phases", config.num_phases, 1),
+        ("--centroids", config.num_centroids, 2),
+        ("--episode-length", config.episode_length, 1),
+    ):
+        if value < least:
+            raise ValueError(f"{name} must be at least {least}, not {value}")
     if config.generations < config.num_phases:
         need = (config.num_phases + 1) * config.batch_size
         raise ValueError(
             f"a budget of {config.evaluations} evaluations at batch size {config.batch_size} gives "
-            f"{max(config.generations, 0)} generations, fewer than the {config.num_phases} phases; "
-            f"use --evals {need} or more, fewer --phases, or a smaller --batch-size"
+            f"{max(config.generations, 0)} generations after the initial population, fewer than the "
+            f"{config.num_phases} phases; use --evals {need} or more, fewer --phases, or a smaller --batch-size"
         )
-    if tail_phases < 1:
+    if schedule.tail_phases(config.num_phases) < 1:
+        least = next(n for n in range(1, 100_001) if schedule.tail_phases(n) >= 1)
         raise ValueError(
-            f"with {config.num_phases} phases no phase lies wholly in the schedule's alpha = 1 tail "
-            f"(from {tail_start:.0%}), so the run would not end on the standard body; "
-            f"use at least {_phases_for_tail(tail_start)} phases"
+            f"with {config.num_phases} phases no phase lies wholly in the alpha = 1 tail of {schedule.name} "
+            f"(from {float(schedule.tail_start):.0%}), so the run would not end on the standard body; "
+            f"use --phases {least} or more"
         )
-
-
-def _phases_for_tail(tail_start: float) -> int:
-    phases = 1
-    while phases - int(-(-tail_start * phases // 1)) < 1:
-        phases += 1
-    return phases

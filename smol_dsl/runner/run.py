@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -242,9 +241,5 @@ def alpha_one_evaluations(rows: list[dict[str, Any]], first_tail_phase: int) -> 
 
 
 def format_duration(seconds: float) -> str:
-    minutes, seconds = divmod(int(math.ceil(seconds)), 60)
-    return f"{minutes}m{seconds:02d}s" if minutes else f"{seconds}s"
-
-
-def _stderr_is_terminal() -> bool:
-    return sys.stderr.isatty()
+    minutes, whole = divmod(math.ceil(seconds), 60)
+    return f"{minutes}m{whole:02d}s" if minutes else f"{whole}s"
