@@ -1,0 +1,306 @@
+"""The phased MAP-Elites runner: phases, re-evaluation, budgets, outputs, resume, errors."""
+
+from __future__ import annotations
+
+import csv
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import smol_dsl
+from smol_dsl.runner import RunError, check_config, load_archive, preset_config, run_experiment, schedule_key
+from smol_dsl.runner.algorithm import PhasedMapElites, cvt_centroids
+from smol_dsl.tasks import make_task
+
+SMALL = dict(
+    evaluations=16 * 13,
+    batch_size=16,
+    num_phases=10,
+    num_centroids=32,
+    episode_length=20,
+    hidden_layer_sizes=(8, 8),
+    num_init_cvt_samples=2000,
+)
+
+
+def small_config(**overrides):
+    return preset_config("walker2d", "quick", **{**SMALL, **overrides})
+
+
+@pytest.fixture(scope="session")
+def task():
+    config = small_config()
+    return make_task(
+        "walker2d",
+        episode_length=config.episode_length,
+        hidden_layer_sizes=config.hidden_layer_sizes,
+        init_key=jax.random.fold_in(jax.random.key(config.seed), 0x7A5C),
+    )
+
+
+@pytest.fixture(scope="session")
+def human_run(task, library, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "human"
+    return run_experiment(task, library["human"], small_config(), out_dir=out)
+
+
+def test_phases_follow_the_schedule(human_run, library):
+    config = human_run.config
+    expected = np.asarray(library["human"].phase_alphas(config.num_phases, schedule_key(config.seed)))
+    np.testing.assert_array_equal(human_run.alphas, expected)
+    for row in human_run.metrics:
+        assert row["alpha"] == pytest.approx(float(expected[row["phase"]]))
+        if row["event"] == "train":
+            assert row["phase"] == config.phase_of_generation(row["generation"])
+    phases = [row["phase"] for row in human_run.metrics]
+    assert phases == sorted(phases) and phases[-1] == config.num_phases - 1
+    assert human_run.final["alpha"] == 1.0  # the last phase is on the standard body
+
+
+def test_budget_and_reevaluation_counts(human_run):
+    rows = human_run.metrics
+    config = human_run.config
+    assert rows[-1]["evaluations"] == (config.generations + 1) * config.batch_size == 208
+    # every phase boundary re-evaluates exactly the cells filled just before it
+    boundaries = [i for i, row in enumerate(rows) if row["event"] == "reevaluate"]
+    assert len(boundaries) == config.num_phases - 1
+    for i in boundaries:
+        filled_before = round(rows[i - 1]["coverage"] * config.num_centroids / 100)
+        assert rows[i]["reevaluations"] - rows[i - 1]["reevaluations"] == filled_before
+        assert rows[i]["evaluations"] == rows[i - 1]["evaluations"]
+    assert rows[-1]["reevaluations"] > 0
+
+
+def test_run_directory(human_run, library):
+    out = human_run.out_dir
+    for name in (
+        "config.json",
+        "schedule.sched",
+        "certificate.json",
+        "certificate.txt",
+        "metrics.csv",
+        "checkpoint.npz",
+        "archive.npz",
+        "metrics.png",
+        "archive.png",
+    ):
+        assert (out / name).is_file(), name
+    assert (out / "schedule.sched").read_text() == library["human"].source
+    with open(out / "metrics.csv") as file:
+        rows = list(csv.DictReader(file))
+    assert len(rows) == len(human_run.metrics)
+    assert {
+        "phase",
+        "alpha",
+        "evaluations",
+        "reevaluations",
+        "coverage",
+        "max_fitness",
+        "qd_score",
+        "non_finite",
+    } <= set(rows[0])
+    archive = load_archive(out)
+    assert archive.fitnesses.shape == (32,) and archive.descriptors.shape == (32, 2)
+    assert np.all(np.isfinite(archive.fitnesses[archive.filled]))
+    assert archive.filled.sum() == round(human_run.final["coverage"] * 32 / 100)
+    assert archive.fitnesses.max() == pytest.approx(human_run.final["max_fitness"])
+
+
+def test_archive_elites_replay_to_their_fitness(human_run, task):
+    archive = load_archive(human_run.out_dir)
+    best = archive.best_cell
+    params = jax.tree.map(lambda x: jnp.asarray(x)[None], archive.elite(best))
+    fitness, descriptor, _ = task.scoring_fn()(params, jnp.float32(1.0), jax.random.key(0))
+    assert float(fitness[0]) == pytest.approx(float(archive.fitnesses[best]), rel=1e-5)
+    np.testing.assert_allclose(np.asarray(descriptor[0]), archive.descriptors[best], atol=1e-6)
+
+
+def test_same_seed_same_results(task, library, human_run):
+    again = run_experiment(task, library["human"], small_config())
+    assert again.metrics == human_run.metrics
+    np.testing.assert_array_equal(np.asarray(again.repertoire.fitnesses), np.asarray(human_run.repertoire.fitnesses))
+
+
+def test_resume_after_interruption_matches_an_uninterrupted_run(task, library, human_run, tmp_path):
+    out = tmp_path / "interrupted"
+    partial = run_experiment(task, library["human"], small_config(), out_dir=out, stop_after_generation=6)
+    assert partial.final["generation"] == 6
+    assert not (out / "archive.npz").exists()
+    with pytest.raises(RunError, match="use --resume"):
+        run_experiment(task, library["human"], small_config(), out_dir=out)
+    resumed = run_experiment(task, library["human"], small_config(), out_dir=out, resume=True)
+    assert resumed.metrics == human_run.metrics
+    assert (out / "metrics.csv").read_text() == (human_run.out_dir / "metrics.csv").read_text()
+    ours, theirs = np.load(out / "archive.npz"), np.load(human_run.out_dir / "archive.npz")
+    assert sorted(ours.files) == sorted(theirs.files)
+    for name in ours.files:
+        np.testing.assert_array_equal(ours[name], theirs[name])
+
+
+def test_resume_refuses_other_settings(task, library, human_run, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(human_run.out_dir, out)
+    with pytest.raises(RunError, match="different settings"):
+        run_experiment(task, library["human"], small_config(seed=1), out_dir=out, resume=True)
+    with pytest.raises(RunError, match="different schedule"):
+        run_experiment(task, library["smol"], small_config(), out_dir=out, resume=True)
+    with pytest.raises(RunError, match="no run to resume"):
+        run_experiment(task, library["smol"], small_config(), out_dir=tmp_path / "none", resume=True)
+
+
+def test_extinction_of_every_elite_reseeds(task):
+    everyone_dies = smol_dsl.parse("extinction 100%\n0% .. 100%: tail\n")
+    result = run_experiment(task, everyone_dies, small_config())
+    events = [row["event"] for row in result.metrics]
+    assert events.count("reseed") == small_config().num_phases - 1
+    for row in result.metrics:
+        if row["event"] == "reevaluate":
+            assert row["coverage"] == 0.0
+
+
+def test_extinction_removes_about_p_of_the_elites(task):
+    algorithm = PhasedMapElites(
+        task.scoring_fn(), task.init_policies, batch_size=16, qd_offset=0.0, iso_sigma=0.005, line_sigma=0.05
+    )
+    centroids = cvt_centroids(256, task.descriptor_low, task.descriptor_high, 5000, jax.random.key(0))
+    archive, state, _, _ = algorithm.init(centroids, jnp.float32(1.0), jax.random.key(1))
+    for k in range(4):
+        archive, state, _, _ = algorithm.reseed(archive, state, jnp.float32(1.0), jax.random.key(10 + k))
+
+    def filled(repertoire):
+        return int(np.sum(np.asarray(repertoire.fitnesses) > -np.inf))
+
+    everyone = filled(algorithm.reevaluate(archive, jnp.float32(1.0), 0.0, jax.random.key(0))[0])
+    assert everyone == filled(archive) >= 8  # same alpha, same cells: nobody is lost but by extinction
+    survivors = [
+        filled(algorithm.reevaluate(archive, jnp.float32(1.0), 0.5, jax.random.key(k))[0]) for k in range(1, 31)
+    ]
+    assert 0.38 < np.mean(survivors) / everyone < 0.62
+    assert filled(algorithm.reevaluate(archive, jnp.float32(1.0), 1.0, jax.random.key(0))[0]) == 0
+
+
+def test_non_finite_results_never_enter_the_archive(task):
+    real_score = task.scoring_fn()
+
+    def poisoned(params, alpha, key):
+        fitnesses, descriptors, extra = real_score(params, alpha, key)
+        bad = jnp.arange(fitnesses.shape[0]) % 3 == 0
+        fitnesses = jnp.where(bad, jnp.nan, fitnesses)
+        descriptors = jnp.where((jnp.arange(fitnesses.shape[0]) % 3 == 1)[:, None], jnp.inf, descriptors)
+        return fitnesses, descriptors, extra
+
+    algorithm = PhasedMapElites(
+        poisoned, task.init_policies, batch_size=16, qd_offset=0.0, iso_sigma=0.005, line_sigma=0.05
+    )
+    centroids = cvt_centroids(32, task.descriptor_low, task.descriptor_high, 2000, jax.random.key(0))
+    repertoire, state, _, evaluation = algorithm.init(centroids, jnp.float32(1.0), jax.random.key(1))
+    assert evaluation.non_finite == 11  # indices 0, 1, 3, 4, ... of 16: two of every three
+    repertoire, state, _, evaluation = algorithm.generation(repertoire, state, jnp.float32(1.2), jax.random.key(2))
+    assert evaluation.non_finite == 11
+    repertoire, evaluation = algorithm.reevaluate(repertoire, jnp.float32(0.8), 0.0, jax.random.key(3))
+    fitnesses = np.asarray(repertoire.fitnesses).reshape(-1)
+    filled = fitnesses > -np.inf
+    assert np.all(np.isfinite(fitnesses[filled]))
+    assert np.all(np.isfinite(np.asarray(repertoire.descriptors)[filled]))
+
+
+def test_config_checks(library):
+    with pytest.raises(ValueError, match="--phases 10 or more"):
+        check_config(small_config(num_phases=9), library["human"])
+    check_config(small_config(num_phases=9), library["vanilla"])  # vanilla is all tail
+    with pytest.raises(ValueError, match="--evals 2688 or more"):
+        check_config(small_config(num_phases=20, batch_size=128, evaluations=1000), library["smol"])
+    with pytest.raises(ValueError, match="--centroids must be at least 2"):
+        check_config(small_config(num_centroids=1), library["smol"])
+    paper = preset_config("walker2d", "paper")
+    assert (paper.evaluations, paper.batch_size, paper.num_phases, paper.num_centroids, paper.episode_length) == (
+        10_000_000,
+        8192,
+        100,
+        1024,
+        1000,
+    )
+    assert preset_config("ant_omni", "paper").hidden_layer_sizes == (256, 256)
+
+
+def _cli(*args, cwd):
+    command = [sys.executable, "-m", "smol_dsl.cli", *args]
+    return subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+CLI_RUN = [
+    "run",
+    "walker2d",
+    "human",
+    "--evals",
+    str(16 * 13),
+    "--batch-size",
+    "16",
+    "--phases",
+    "10",
+    "--centroids",
+    "32",
+    "--episode-length",
+    "20",
+    "--no-progress",
+]
+
+
+def test_kill_9_then_resume_equals_uninterrupted_run(tmp_path):
+    whole = _cli(*CLI_RUN, "--out", "whole", cwd=tmp_path)
+    killed = _cli(*CLI_RUN, "--out", "killed", cwd=tmp_path)
+    metrics = tmp_path / "killed" / "metrics.csv"
+    deadline = time.time() + 600
+    while time.time() < deadline:  # kill once a few phases are checkpointed
+        if metrics.is_file() and metrics.read_text().count("reevaluate") >= 3:
+            break
+        time.sleep(0.05)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait()
+    assert not (tmp_path / "killed" / "archive.npz").exists()
+    out, err = whole.communicate(timeout=600)
+    assert whole.returncode == 0, err
+    resumed = _cli(*CLI_RUN, "--out", "killed", "--resume", cwd=tmp_path)
+    out, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err
+    assert "done: walker2d under SMOL-Human" in out
+    assert (tmp_path / "killed" / "metrics.csv").read_text() == (tmp_path / "whole" / "metrics.csv").read_text()
+    ours, theirs = np.load(tmp_path / "killed" / "archive.npz"), np.load(tmp_path / "whole" / "archive.npz")
+    for name in theirs.files:
+        np.testing.assert_array_equal(ours[name], theirs[name])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "hopper", "human"], "unknown task 'hopper'"),
+        (["run", "walker2d", "nope.sched"], "no such file"),
+        (["run", "walker2d", "human", "--phases", "5"], "--phases 10 or more"),
+        (["run", "walker2d", "human", "--evals", "100"], "generations"),
+        (["run", "walker2d", "human", "--preset", "huge"], "unknown preset"),
+        (["run", "walker2d", "human", "--evals", "0"], "must be at least 1"),
+    ],
+)
+def test_cli_run_bad_input(tmp_path, args, message):
+    process = _cli(*args, cwd=tmp_path)
+    _, err = process.communicate(timeout=300)
+    assert process.returncode == 2
+    assert message in err and "Traceback" not in err
+
+
+def test_cli_refuses_to_overwrite(tmp_path):
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "something").write_text("precious")
+    process = _cli(*CLI_RUN, "--out", "taken", cwd=tmp_path)
+    _, err = process.communicate(timeout=300)
+    assert process.returncode == 2 and "already exists" in err
+    assert (tmp_path / "taken" / "something").read_text() == "precious"
+    assert os.listdir(tmp_path / "taken") == ["something"]

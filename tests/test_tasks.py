@@ -1,0 +1,88 @@
+"""The alpha-aware Brax tasks: QDax parity at alpha = 1, gear scaling, one compilation."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from smol_dsl.tasks import make_task
+
+EPISODE = 50
+BATCH = 8
+
+
+@pytest.fixture(scope="session")
+def walker():
+    return make_task("walker2d", episode_length=EPISODE, init_key=jax.random.key(3))
+
+
+@pytest.fixture(scope="session")
+def cheetah():
+    return make_task("halfcheetah", episode_length=EPISODE, init_key=jax.random.key(3))
+
+
+def _qdax_scores(qdax_name, task, params, gear_scale=None):
+    import qdax.tasks.brax.v2 as qdax_envs
+    from qdax.tasks.brax.descriptor_extractors import get_feet_contact_proportion
+    from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
+
+    env = qdax_envs.create(qdax_name, episode_length=EPISODE)
+    if gear_scale is not None:  # the plain Brax env with its actuators' gear multiplied
+        base = env.unwrapped
+        base.sys = base.sys.replace(actuator=base.sys.actuator.replace(gear=base.sys.actuator.gear * gear_scale))
+    key = jax.random.key(3)
+    score = create_brax_scoring_fn(env, task.policy, get_feet_contact_proportion, key, episode_length=EPISODE)
+    fitnesses, descriptors, _ = score(params, key)
+    return np.asarray(fitnesses), np.asarray(descriptors)
+
+
+@pytest.mark.parametrize(("fixture", "qdax_name"), [("walker", "walker2d_uni"), ("cheetah", "halfcheetah_uni")])
+def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
+    task = request.getfixturevalue(fixture)
+    params = task.init_policies(jax.random.key(1), BATCH)
+    fitnesses, descriptors, _ = task.scoring_fn()(params, jnp.float32(1.0), jax.random.key(0))
+    expected_fitnesses, expected_descriptors = _qdax_scores(qdax_name, task, params)
+    np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
+    assert descriptors.shape == (BATCH, 2)
+
+
+@pytest.mark.parametrize("alpha", [0.5, 1.5])
+def test_alpha_equals_plain_brax_env_with_scaled_gear(walker, alpha):
+    params = walker.init_policies(jax.random.key(2), BATCH)
+    fitnesses, descriptors, _ = walker.scoring_fn()(params, jnp.float32(alpha), jax.random.key(0))
+    expected_fitnesses, expected_descriptors = _qdax_scores("walker2d_uni", walker, params, gear_scale=alpha)
+    np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
+
+
+def test_alpha_changes_the_physics_without_recompiling(walker):
+    params = walker.init_policies(jax.random.key(4), BATCH)
+    score = walker.scoring_fn()
+    results = [np.asarray(score(params, jnp.float32(alpha), jax.random.key(0))[0]) for alpha in (0.6, 1.0, 1.4)]
+    assert score._cache_size() == 1
+    assert not np.allclose(results[0], results[2])
+
+
+def test_ant_omni_scores_final_position_and_energy():
+    task = make_task("ant_omni", episode_length=20, hidden_layer_sizes=(16, 16))
+    params = task.init_policies(jax.random.key(0), 4)
+    fitnesses, descriptors, _ = task.scoring_fn()(params, jnp.float32(1.2), jax.random.key(0))
+    assert descriptors.shape == (4, 2) and fitnesses.shape == (4,)
+    assert np.all(np.isfinite(fitnesses)) and np.all(np.abs(np.asarray(descriptors)) <= 30.0)
+    # fitness is the healthy bonus minus control and contact costs: at most 1 per step
+    assert np.all(np.asarray(fitnesses) <= 20.0)
+
+
+def test_policies_are_tanh_mlps_with_the_papers_sizes(walker):
+    params = walker.init_policies(jax.random.key(0), 1)
+    kernels = [v["kernel"].shape for v in params["params"].values()]
+    assert kernels == [(1, 17, 64), (1, 64, 64), (1, 64, 6)]
+    assert walker.policy.activation is jnp.tanh and walker.policy.final_activation is jnp.tanh
+
+
+def test_unknown_task():
+    with pytest.raises(ValueError, match="walker2d, halfcheetah, ant_omni"):
+        make_task("hopper")
