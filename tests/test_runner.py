@@ -304,3 +304,36 @@ def test_cli_refuses_to_overwrite(tmp_path):
     assert process.returncode == 2 and "already exists" in err
     assert (tmp_path / "taken" / "something").read_text() == "precious"
     assert os.listdir(tmp_path / "taken") == ["something"]
+
+
+@pytest.fixture(scope="session")
+def tiny_tasks():
+    return {
+        name: make_task(name, episode_length=10, hidden_layer_sizes=(8, 8))
+        for name in ("walker2d", "halfcheetah", "ant_omni")
+    }
+
+
+@pytest.mark.parametrize("task_name", ["walker2d", "halfcheetah", "ant_omni"])
+def test_every_task_runs_under_every_library_schedule(tiny_tasks, library, task_name):
+    task = tiny_tasks[task_name]
+    config = preset_config(
+        task_name,
+        "quick",
+        evaluations=8 * 12,
+        batch_size=8,
+        num_phases=10,
+        num_centroids=16,
+        episode_length=10,
+        hidden_layer_sizes=(8, 8),
+        num_init_cvt_samples=1000,
+    )
+    for name, schedule in library.items():
+        result = run_experiment(task, schedule, config)
+        check_config(config, schedule)
+        assert result.final["evaluations"] == 96, name
+        assert result.final["alpha"] == 1.0, name
+        assert result.final["coverage"] > 0 or schedule.extinction > 0, name
+        assert np.all(
+            np.isfinite(np.asarray(result.repertoire.fitnesses)[np.asarray(result.repertoire.fitnesses) > -np.inf])
+        ), name

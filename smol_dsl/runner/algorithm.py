@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any
 
 import jax
@@ -78,7 +78,8 @@ class PhasedMapElites:
             emitter=emitter,
             metrics_function=partial(default_qd_metrics, qd_offset=qd_offset),
         )
-        self.score = jax.jit(scoring_fn)
+        # an already-jitted scoring function is used as is, keeping its compilation cache
+        self.score = scoring_fn if hasattr(scoring_fn, "lower") else jax.jit(scoring_fn)
         self.ask = jax.jit(self.map_elites.ask)
         self._tell = jax.jit(self._tell_finite)
         self._insert = jax.jit(self._insert_finite)
@@ -178,6 +179,26 @@ class PhasedMapElites:
             fresh, dropped = self._insert(fresh, genotypes, fitnesses, descriptors, jnp.asarray(valid), survives)
             non_finite += int(dropped)
         return fresh, Evaluation(len(filled), non_finite)
+
+
+@lru_cache(maxsize=16)
+def phased_map_elites(
+    scoring_fn: ScoringFn,
+    init_genotypes: Callable[[jax.Array, int], Any],
+    batch_size: int,
+    qd_offset: float,
+    iso_sigma: float,
+    line_sigma: float,
+) -> PhasedMapElites:
+    """A shared PhasedMapElites per setting, so runs in one process reuse compilations."""
+    return PhasedMapElites(
+        scoring_fn,
+        init_genotypes,
+        batch_size=batch_size,
+        qd_offset=qd_offset,
+        iso_sigma=iso_sigma,
+        line_sigma=line_sigma,
+    )
 
 
 def cvt_centroids(

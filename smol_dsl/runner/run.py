@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from smol_dsl.runner.algorithm import Evaluation, PhasedMapElites, cvt_centroids
+from smol_dsl.runner.algorithm import Evaluation, cvt_centroids, phased_map_elites
 from smol_dsl.runner.checkpoint import RunState, atomic_write, load_checkpoint, save_archive, save_checkpoint
 from smol_dsl.runner.config import RunConfig
 from smol_dsl.schedule import Schedule
@@ -131,13 +131,8 @@ def run_experiment(
     if directory is not None:
         _prepare_directory(directory, schedule, config, resume)
 
-    algorithm = PhasedMapElites(
-        task.scoring_fn(),
-        task.init_policies,
-        batch_size=config.batch_size,
-        qd_offset=task.qd_offset,
-        iso_sigma=config.iso_sigma,
-        line_sigma=config.line_sigma,
+    algorithm = phased_map_elites(
+        task.scoring_fn(), task.init_policies, config.batch_size, task.qd_offset, config.iso_sigma, config.line_sigma
     )
     key = jax.random.key(config.seed)
     key, cvt_key, init_key = jax.random.split(key, 3)

@@ -14,6 +14,7 @@ step), so at α = 1 fitnesses and descriptors equal QDax's `walker2d_uni`,
 from __future__ import annotations
 
 import copy
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -80,12 +81,16 @@ class Task:
         return fitness, self.final_descriptor(descriptors, valid)
 
     def scoring_fn(self) -> ScoringFn:
-        """A jitted (params, alpha, key) -> (fitnesses, descriptors, extra) for batches.
+        """The jitted (params, alpha, key) -> (fitnesses, descriptors, extra) for batches.
 
-        Episodes start from the task's deterministic state, so `key` is unused; it is
-        kept for QDax's scoring-function convention.
+        Built once per task, so every run and re-evaluation with this task shares one
+        compilation per batch shape. Episodes start from the task's deterministic state,
+        so `key` is unused; it is kept for QDax's scoring-function convention.
         """
+        return self._scoring_fn
 
+    @functools.cached_property
+    def _scoring_fn(self) -> ScoringFn:
         @jax.jit
         def score(params: Any, alpha: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array, dict]:
             del key
