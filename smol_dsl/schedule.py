@@ -55,6 +55,7 @@ class Schedule:
         self.segments: tuple[SymbolicSegment, ...] = program.segments
         self.tail_start: Fraction = _fraction(tail_start(self.segments))
         self._evaluators: list[Callable[..., Any]] | None = None
+        self._phase_alphas_compiled: dict[int, Callable[..., Any]] = {}
 
     # ------------------------------------------------------------------ symbolic
     @property
@@ -100,10 +101,16 @@ class Schedule:
 
     def phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """alpha for every phase of `num_phases`, shape (num_phases,)."""
-        import jax.numpy as jnp
+        import jax
 
         _check_phases(num_phases)
-        return self.phase_alpha(jnp.arange(num_phases), num_phases, key)
+        if num_phases not in self._phase_alphas_compiled:
+            import jax.numpy as jnp
+
+            self._phase_alphas_compiled[num_phases] = jax.jit(
+                lambda key: self.phase_alpha(jnp.arange(num_phases), num_phases, key)
+            )
+        return self._phase_alphas_compiled[num_phases](_default_key(key))
 
     def as_optax(
         self, total_steps: int, *, num_phases: int | None = None, key: jax.Array | None = None

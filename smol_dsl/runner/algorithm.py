@@ -85,6 +85,9 @@ class PhasedMapElites:
         self._insert = jax.jit(self._insert_finite)
         self.metrics = jax.jit(partial(default_qd_metrics, qd_offset=qd_offset))
         self._gather = jax.jit(lambda tree, index: jax.tree.map(lambda x: x[index], tree))
+        # A generation is one program: variation, rollouts and insertion fused, and the
+        # archive's buffers donated so that insertion updates them in place.
+        self._generation = jax.jit(self._generation_step, donate_argnums=(0,))
 
     # ------------------------------------------------------------------ training
     def _tell_finite(
@@ -116,16 +119,22 @@ class PhasedMapElites:
         repertoire, emitter_state, metrics, dropped = self._tell(genotypes, fitnesses, descriptors, empty, None)
         return repertoire, emitter_state, metrics, Evaluation(self.batch_size, int(dropped))
 
+    def _generation_step(
+        self, repertoire: MapElitesRepertoire, emitter_state: Any, alpha: jax.Array, key: jax.Array
+    ) -> tuple[MapElitesRepertoire, Any, Metrics, jax.Array]:
+        ask_key, score_key = jax.random.split(key)
+        genotypes, _ = self.map_elites.ask(repertoire, emitter_state, ask_key)
+        fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
+        return self._tell_finite(genotypes, fitnesses, descriptors, repertoire, emitter_state)
+
     def generation(
         self, repertoire: MapElitesRepertoire, emitter_state: Any, alpha: jax.Array, key: jax.Array
     ) -> tuple[MapElitesRepertoire, Any, Metrics, Evaluation]:
-        """One MAP-Elites generation at actuator scale alpha."""
-        ask_key, score_key = jax.random.split(key)
-        genotypes, _ = self.ask(repertoire, emitter_state, ask_key)
-        fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
-        repertoire, emitter_state, metrics, dropped = self._tell(
-            genotypes, fitnesses, descriptors, repertoire, emitter_state
-        )
+        """One MAP-Elites generation at actuator scale alpha.
+
+        The archive passed in is donated: use only the one returned.
+        """
+        repertoire, emitter_state, metrics, dropped = self._generation(repertoire, emitter_state, alpha, key)
         return repertoire, emitter_state, metrics, Evaluation(self.batch_size, int(dropped))
 
     def reseed(
