@@ -37,6 +37,8 @@ ENCLOSURE_SECONDS = 10.0
 ENCLOSURE_PIECES = 64
 """Sub-intervals of the first enclosure."""
 REFINEMENTS = 256
+SLOPE_ROUNDING = 1e-12
+"""Relative slack for the sign of a slope from interval arithmetic (a few ulps of rounding)."""
 """Bisections spent tightening each side of an enclosure."""
 
 Monotone = Literal["constant", "increasing", "decreasing", "random", "neither", "unknown"]
@@ -251,9 +253,13 @@ def slope_sign(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Monotone:
     except _SYMPY_FAILURES:
         enclosed = None
     if enclosed is not None:
-        if enclosed[0] >= 0:
+        # Outward rounding widens an enclosure by a few ulps, so a slope that is exactly 0
+        # somewhere (at the end of an ease, say) would never be proven >= 0; accept a sign
+        # up to SLOPE_ROUNDING relative to the slope's scale.
+        slack = SLOPE_ROUNDING * max(1.0, abs(enclosed[0]), abs(enclosed[1]))
+        if enclosed[0] >= -slack:
             return "increasing"
-        if enclosed[1] <= 0:
+        if enclosed[1] <= slack:
             return "decreasing"
     # sympy on the open interval (a derivative may be infinite at an end, as for sqrt);
     # alpha is continuous on the closed interval, so that decides it there too.

@@ -70,10 +70,10 @@ class ScheduleError(Exception):
     def _excerpt(self) -> list[str]:
         if self.span is None or self.source is None:
             return []
-        source_lines = self.source.splitlines()
+        source_lines = self.source.split("\n")  # lines as the parser counts them
         if not 1 <= self.span.line <= len(source_lines):
             return []
-        text = source_lines[self.span.line - 1].expandtabs(1)
+        text = source_lines[self.span.line - 1].rstrip("\r").expandtabs(1)
         printable = "".join(ch if ch.isprintable() else "?" for ch in text)
         # Long lines are cut around the caret so the message stays one screen wide.
         start = max(0, self.span.column - 1 - 60)

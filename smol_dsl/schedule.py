@@ -202,12 +202,15 @@ class Schedule:
         if self._evaluators is None:
             from smol_dsl.jaxify import bell, to_jax
 
-            self._evaluators = [
-                bell(s.bell, float(s.start), float(s.end))
-                if s.bell is not None
-                else (None if s.random else to_jax(s.pieces[0].expr))
-                for s in self.segments
-            ]
+            def evaluator(segment: SymbolicSegment) -> Callable[..., Any] | None:
+                if _fraction(segment.start) >= self.tail_start:
+                    # proven identically 1 (say sin(t)**2 + cos(t)**2): exactly 1.0 in floats too
+                    return to_jax(sp.Integer(1))
+                if segment.bell is not None:
+                    return bell(segment.bell, float(segment.start), float(segment.end))
+                return None if segment.random else to_jax(segment.pieces[0].expr)
+
+            self._evaluators = [evaluator(s) for s in self.segments]
         return self._evaluators
 
     def __repr__(self) -> str:

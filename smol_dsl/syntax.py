@@ -322,8 +322,8 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
     column = getattr(error, "column", None) or 1
     at_end = isinstance(error, UnexpectedEOF) or (isinstance(error, UnexpectedToken) and error.token.type == "$END")
     if line < 1 or at_end:  # point just past the last character
-        lines = text.splitlines() or [""]
-        line, column = len(lines), len(lines[-1]) + 1
+        lines = text.rstrip("\n").split("\n")
+        line, column = len(lines), len(lines[-1].rstrip("\r")) + 1
     example = _example_hint(error)
     if isinstance(error, UnexpectedCharacters):
         char = text[error.pos_in_stream] if error.pos_in_stream < len(text) else "?"
@@ -386,7 +386,7 @@ def check_text(text: str) -> None:
             span=Span(line, column),
             hint="a .sched file is plain UTF-8 text; is this a binary file?",
         )
-    if not text.strip() or all(not line.split("#", 1)[0].strip() for line in text.splitlines()):
+    if not text.strip() or all(not line.split("#", 1)[0].strip() for line in text.split("\n")):
         raise ScheduleError(
             "empty schedule: the file has no statements",
             span=Span(1, 1),

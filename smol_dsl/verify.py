@@ -203,6 +203,22 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
             "constant" if low == high else "random",
             True,
         )
+    if segment.bell is not None:
+        # Each half of a bell is a + (p - a) * (G(t) - G(s)) / (1 - G(s)) with G monotone on
+        # the half: it runs monotonically from its end value to the peak, so its extrema
+        # are those two values, exactly.
+        bell = segment.bell
+        edge = bell.start if piece.end == bell.peak_at else bell.end
+        low, high = sorted((real(edge), real(bell.peak)))
+        assert low is not None and high is not None
+        rising = piece.end == bell.peak_at
+        if low == high:
+            monotone: Monotone = "constant"
+        else:
+            monotone = "increasing" if (real(bell.peak) > real(edge)) == rising else "decreasing"
+        return PieceCertificate(
+            segment.index + 1, kind, float(piece.start), float(piece.end), low, high, monotone, True
+        )
     try:
         violation = domain_violation(piece.expr, piece.start, piece.end)
         expr = simplified(piece.expr)

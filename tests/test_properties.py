@@ -2,23 +2,31 @@
 
 Schedules come from `strategies.valid_schedules()` together with the ground truth they were
 built from; nothing here trusts smol_dsl to say what a schedule should be.
+
+JAX evaluates in float32, so values are compared with RTOL / ATOL, and points that a float32 t
+could put on either side of a boundary (within NEAR_EDGE of it, but not on it) are skipped.
+Arrays handed to JAX keep fixed shapes, so that op-by-op evaluation is compiled once per shape.
 """
 
 from __future__ import annotations
 
 import math
 from fractions import Fraction
+from itertools import pairwise
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 import sympy as sp
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from strategies import (
-    FAST_KINDS,
-    KIND_WEIGHTS,
+    ALL_KINDS,
+    CHEAP_KINDS,
+    EASINGS,
+    NO_BELLS,
+    ONE_SHAPES,
     ScheduleSpec,
     invalid_schedules,
     random_segment_schedules,
@@ -30,11 +38,15 @@ import smol_dsl
 from smol_dsl.symbolic import T
 
 RTOL, ATOL = 1e-4, 1e-5  # float32 evaluation against exact values
-NEAR_EDGE = 1e-6  # float32 t this close to a segment boundary may land on either side
+NEAR_EDGE = Fraction(1, 10**6)  # float32 t this close to a boundary may land on either side of it
 
-COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-RANDOM_HEAVY = {**FAST_KINDS, "random": 6}
-MONOTONE_KINDS = {**KIND_WEIGHTS, "constant": 1, "random": 1}
+COMMON = dict(
+    deadline=None,
+    report_multiple_bugs=False,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+RANDOM_HEAVY = {**CHEAP_KINDS, "random": 6}
+MONOTONE_KINDS = {**ALL_KINDS, "constant": 1, "random": 1}
 
 seeds = st.integers(0, 2**31 - 1)
 phase_counts = st.sampled_from((10, 16, 20, 40, 50, 64, 100, 200))
@@ -43,7 +55,7 @@ _compiled: dict[str, smol_dsl.Schedule] = {}
 
 
 def compile_spec(spec: ScheduleSpec) -> smol_dsl.Schedule:
-    """Parse a generated (valid) schedule; it must parse. Cached: verification is slow."""
+    """Parse a generated (valid) schedule; it must parse. Cached: verification takes seconds."""
     text = spec.text
     if text not in _compiled:
         _compiled[text] = smol_dsl.parse(text)
@@ -55,27 +67,36 @@ def key_of(seed: int) -> jax.Array:
 
 
 def close(actual, expected, rtol: float = RTOL, atol: float = ATOL) -> bool:
-    return bool(np.all(np.abs(np.asarray(actual, np.float64) - expected) <= atol + rtol * np.abs(expected)))
+    actual, expected = np.asarray(actual, np.float64), np.asarray(expected, np.float64)
+    return bool(np.all(np.abs(actual - expected) <= atol + rtol * np.abs(expected)))
 
 
-def float32_grid(n: int) -> np.ndarray:
+def grid(n: int) -> np.ndarray:
     return np.linspace(0.0, 1.0, n, dtype=np.float32)
 
 
-def away_from_edges(spec: ScheduleSpec, points: np.ndarray) -> np.ndarray:
-    """Drop float32 points that straddle a boundary: near (but not on) a segment boundary, or
-    near a random segment's bin edge (alpha counts a point 1e-4 bins below an edge as on it)."""
+def clean(spec: ScheduleSpec, points: np.ndarray) -> np.ndarray:
+    """Mask of the float32 points that do not straddle a boundary: not near (but not on) a
+    segment boundary, nor near a random bin edge (alpha counts t up to 1e-4 bins below an edge
+    as on it)."""
     boundaries = spec.boundaries()
-    edges = spec.random_edges()
-    keep = []
+    edges = [(edge, max(NEAR_EDGE, every / 5000)) for edge, every in spec.random_edges()]
+    mask = []
     for x in points:
         t = Fraction(float(x))
-        if any(0 < abs(t - b) < NEAR_EDGE for b in boundaries):
-            continue
-        if any(abs(t - edge) < max(NEAR_EDGE, 2e-4 * float(every)) and t != edge for edge, every in edges):
-            continue
-        keep.append(x)
-    return np.asarray(keep, dtype=np.float32)
+        near_boundary = any(0 < abs(t - b) < NEAR_EDGE for b in boundaries)
+        near_bin_edge = any(0 < abs(t - edge) < margin for edge, margin in edges)
+        mask.append(not (near_boundary or near_bin_edge))
+    return np.asarray(mask, dtype=bool)
+
+
+def span_points(start: Fraction, end: Fraction, n: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """n float32 points over [start, end], and the mask of those inside [start, end) that are
+    not within NEAR_EDGE of either end (the start itself is kept)."""
+    points = np.linspace(float(start), float(end), n, dtype=np.float32)
+    exact = [Fraction(float(x)) for x in points]
+    mask = np.asarray([(t == start or t >= start + NEAR_EDGE) and t < end - NEAR_EDGE for t in exact], dtype=bool)
+    return points, mask
 
 
 def draws_of(schedule: smol_dsl.Schedule, key: jax.Array) -> list[np.ndarray | None]:
@@ -83,43 +104,34 @@ def draws_of(schedule: smol_dsl.Schedule, key: jax.Array) -> list[np.ndarray | N
 
 
 def sympy_alpha(schedule: smol_dsl.Schedule, t: Fraction, draws: list[np.ndarray | None]) -> float:
-    """alpha(t) from the sympy Piecewise at exact t, with each random draw u_j(k) replaced by
-    the value `Schedule.draws` gives it."""
+    """alpha(t) from the sympy Piecewise at exact t, each random draw u_j(k) replaced by the
+    value `Schedule.draws` gives it."""
     value = schedule.symbolic.subs(T, sp.Rational(t.numerator, t.denominator))
 
     def draw(call: AppliedUndef) -> sp.Expr:
         name = call.func.__name__
         assert name.startswith("u_"), name
-        j = int(name[2:]) - 1
-        segment_draws = draws[j]
-        assert segment_draws is not None, f"{name} names segment {j + 1}, which is not random"
+        j = int(name[2:]) - 1  # u_j belongs to segment j, counted from 1
+        assert draws[j] is not None, f"{name} names segment {j + 1}, which is not random"
         k = int(call.args[0])
-        assert 0 <= k < len(segment_draws), f"{name}({k}) outside its {len(segment_draws)} draws"
-        return sp.Rational(float(segment_draws[k]))
+        assert 0 <= k < len(draws[j]), f"{name}({k}) is outside its {len(draws[j])} draws"
+        return sp.Rational(float(draws[j][k]))
 
     value = value.replace(lambda e: isinstance(e, AppliedUndef), draw)
     return float(sp.N(value, 30))
 
 
 def monotone_on(values: np.ndarray, way: str) -> bool:
-    steps = np.diff(np.asarray(values, np.float64))
-    slack = ATOL + RTOL * np.abs(np.asarray(values[1:], np.float64))
+    values = np.asarray(values, np.float64)
+    steps = np.diff(values)
+    slack = ATOL + RTOL * np.abs(values[1:])
     return bool(np.all(steps >= -slack) if way == "increasing" else np.all(steps <= slack))
-
-
-def inside(spec_start: Fraction, spec_end: Fraction, n: int) -> np.ndarray:
-    """float32 points inside [start, end) (exactly, as rationals), start included."""
-    points = np.linspace(float(spec_start), float(spec_end), n, dtype=np.float32)
-    return np.asarray(
-        [x for x in points if spec_start <= Fraction(float(x)) < spec_end] or [np.float32(spec_start)],
-        dtype=np.float32,
-    )
 
 
 # ----------------------------------------------------------------------------- coverage
 
 
-@settings(max_examples=12, **COMMON)
+@settings(max_examples=10, **COMMON)
 @given(valid_schedules())
 def test_valid_schedules_parse_and_tile_the_run(spec: ScheduleSpec):
     schedule = compile_spec(spec)
@@ -127,15 +139,17 @@ def test_valid_schedules_parse_and_tile_the_run(spec: ScheduleSpec):
     assert len(segments) == len(spec.segments)
     assert segments[0].start == 0
     assert segments[-1].end == 1
-    for before, after in zip(segments, segments[1:]):
-        assert before.end == after.start  # no gap, no overlap, exactly
+    for before, after in pairwise(segments):
+        assert before.end == after.start  # no gap, no overlap, in exact arithmetic
     for got, want in zip(segments, spec.segments):
+        assert isinstance(got.start, sp.Rational) and isinstance(got.end, sp.Rational)
         assert (Fraction(int(got.start.p), int(got.start.q)), Fraction(int(got.end.p), int(got.end.q))) == (
             want.start,
             want.end,
         )
         assert got.kind == want.kind
         assert got.monotone == want.declared
+        assert len(got.pieces) == len(want.pieces)
         assert (got.random is not None) == (want.random is not None)
         if want.random is not None:
             assert got.random.count == want.random.count
@@ -155,38 +169,39 @@ def test_valid_schedules_parse_and_tile_the_run(spec: ScheduleSpec):
 
 
 @settings(max_examples=10, **COMMON)
-@given(valid_schedules(declare=False), seeds, st.lists(st.floats(0, 1, width=32), max_size=8))
+@given(valid_schedules(declare=False), seeds, st.lists(st.floats(0, 1, width=32), min_size=7, max_size=7))
 def test_jax_alpha_agrees_with_the_sympy_piecewise(spec: ScheduleSpec, seed: int, extra: list[float]):
     schedule = compile_spec(spec)
     key = key_of(seed)
     draws = draws_of(schedule, key)
-    points = away_from_edges(spec, np.concatenate([float32_grid(33), np.asarray(extra, np.float32)]))
+    points = np.concatenate([grid(33), np.asarray(extra, np.float32)])
     values = np.asarray(schedule.alpha(jnp.asarray(points), key))
-    assert values.shape == points.shape
-    for x, got in zip(points, values):
+    assert values.shape == points.shape and values.dtype == np.float32
+    for x, got in zip(points[clean(spec, points)], values[clean(spec, points)]):
         want = sympy_alpha(schedule, Fraction(float(x)), draws)
         assert close(got, want), f"alpha({float(x)!r}) = {got} in JAX but {want} in sympy"
-    # the same values as a scalar, under jit and under vmap
-    for i in range(0, len(points), max(1, len(points) // 4)):
+    # the same values from a scalar t, under jit, and under vmap
+    for i in (0, 16, 32, 35):
         assert float(schedule.alpha(float(points[i]), key)) == values[i]
     jitted = jax.jit(schedule.alpha)(jnp.asarray(points), key)
-    assert close(jitted, values.astype(np.float64), rtol=1e-6, atol=1e-7)
-    mapped = jax.vmap(lambda t: schedule.alpha(t, key))(jnp.asarray(points))
-    assert close(mapped, values.astype(np.float64), rtol=1e-6, atol=1e-7)
+    assert close(jitted, values, rtol=1e-6, atol=1e-7)
+    mapped = jax.jit(jax.vmap(schedule.alpha, in_axes=(0, None)))(jnp.asarray(points), key)
+    assert close(mapped, values, rtol=1e-6, atol=1e-7)
 
 
 @settings(max_examples=10, **COMMON)
 @given(valid_schedules(declare=False), seeds)
 def test_alpha_follows_the_definition_of_each_shape(spec: ScheduleSpec, seed: int):
-    """alpha(t) against the ground truth: each shape's documented formula, evaluated in float64."""
+    """alpha(t) against the ground truth: each shape's documented formula, in float64."""
     schedule = compile_spec(spec)
     key = key_of(seed)
     draws = draws_of(schedule, key)
-    points = away_from_edges(spec, float32_grid(201))
-    values = np.asarray(schedule.alpha(jnp.asarray(points), key))
-    want = np.asarray([spec.alpha(float(x), draws) for x in points])
+    points = grid(201)
+    mask = clean(spec, points)
+    values = np.asarray(schedule.alpha(jnp.asarray(points), key), np.float64)[mask]
+    want = np.asarray([spec.alpha(float(x), draws) for x in points[mask]])
     bad = ~(np.abs(values - want) <= ATOL + RTOL * np.abs(want))
-    assert not bad.any(), [(float(x), float(g), float(w)) for x, g, w in zip(points[bad], values[bad], want[bad])][:5]
+    assert not bad.any(), list(zip(points[mask][bad].tolist(), values[bad].tolist(), want[bad].tolist()))[:5]
     # t outside [0, 1] is clipped
     assert float(schedule.alpha(-0.5, key)) == float(schedule.alpha(0.0, key))
     assert float(schedule.alpha(1.5, key)) == float(schedule.alpha(1.0, key))
@@ -202,25 +217,29 @@ def test_certificate_bounds_every_alpha_and_alpha_is_positive(spec: ScheduleSpec
     cert = schedule.certificate
     key = key_of(seed)
     assert 0 < cert.minimum <= cert.maximum
-    values = np.asarray(schedule.alpha(jnp.asarray(float32_grid(2001)), key), np.float64)
+    values = np.asarray(schedule.alpha(jnp.asarray(grid(2001)), key), np.float64)
     phases = np.asarray(schedule.phase_alphas(n, key), np.float64)
     for sample in (values, phases):
         assert np.all(sample > 0)
         slack = ATOL + RTOL * np.abs(sample)
         assert np.all(sample >= cert.minimum - slack), (sample.min(), cert.minimum)
         assert np.all(sample <= cert.maximum + slack), (sample.max(), cert.maximum)
-    # the certificate's range is sound (contains the true range) and, where exact, tight
+    # the certified range contains the true range and, where every piece is exact, is it
     assert cert.minimum <= float(spec.low) + 1e-9 and cert.maximum >= float(spec.high) - 1e-9
     if all(p.exact for p in cert.pieces):
         assert math.isclose(cert.minimum, float(spec.low), abs_tol=1e-9)
         assert math.isclose(cert.maximum, float(spec.high), abs_tol=1e-9)
-    # each piece's bounds hold on the piece
-    for piece in cert.pieces:
-        segment = spec.segments[piece.segment - 1]
-        assert (piece.minimum <= float(segment.low) + 1e-9 and piece.maximum >= float(segment.high) - 1e-9) or (
-            segment.kind == "bell"  # a bell's pieces are its two halves
-        )
-        local = np.asarray(schedule.alpha(jnp.asarray(inside(Fraction(piece.start), Fraction(piece.end), 64)), key))
+    # one certified piece per true piece (a bell has two), each bounding alpha on its interval
+    assert len(cert.pieces) == len(spec.pieces)
+    for piece, (j, true) in zip(cert.pieces, spec.pieces):
+        assert piece.segment == j + 1
+        assert (piece.start, piece.end) == (float(true.start), float(true.end))
+        assert piece.minimum <= float(true.low) + 1e-9 and piece.maximum >= float(true.high) - 1e-9, (piece, true)
+        if piece.exact:
+            assert math.isclose(piece.minimum, float(true.low), abs_tol=1e-9), (piece, true)
+            assert math.isclose(piece.maximum, float(true.high), abs_tol=1e-9), (piece, true)
+        points, mask = span_points(true.start, true.end)
+        local = np.asarray(schedule.alpha(jnp.asarray(points), key), np.float64)[mask & clean(spec, points)]
         slack = ATOL + RTOL * np.abs(local)
         assert np.all(local >= piece.minimum - slack) and np.all(local <= piece.maximum + slack), piece
     # joins: continuous exactly where the truth is
@@ -230,39 +249,53 @@ def test_certificate_bounds_every_alpha_and_alpha_is_positive(spec: ScheduleSpec
         if before.last is not None and after.first is not None:
             assert join.continuous == (before.last == after.first), join
             assert math.isclose(join.jump, float(after.first - before.last), abs_tol=1e-9), join
+        else:
+            assert not join.continuous and join.jump is None, join
 
 
 # ----------------------------------------------------------------------------- the tail
 
 
-@settings(max_examples=12, **COMMON)
-@given(valid_schedules(kinds=FAST_KINDS), seeds, phase_counts)
+@settings(max_examples=10, **COMMON)
+@given(valid_schedules(kinds=NO_BELLS), seeds, phase_counts)
 def test_alpha_is_exactly_one_in_the_tail(spec: ScheduleSpec, seed: int, n: int):
     schedule = compile_spec(spec)
     key = key_of(seed)
     start = schedule.tail_start
-    assert start == spec.tail_start
+    assert isinstance(start, Fraction) and start == spec.tail_start
     assert start <= Fraction(9, 10)
-    assert math.isclose(schedule.certificate.tail_start, float(start))
-    points = [x for x in float32_grid(1001) if Fraction(float(x)) >= start]
+    assert schedule.certificate.tail_start == float(start)
+    # float32 points t >= tail_start exactly: a grid, the first float32 at or after the start, 1
     first = np.float32(float(start))
     if Fraction(float(first)) < start:
         first = np.nextafter(first, np.float32(2))
-    points = np.asarray([first, *points, np.float32(1)], dtype=np.float32)
-    values = np.asarray(schedule.alpha(jnp.asarray(points), key))
+    points = np.concatenate([grid(1001), [first, np.float32(1)]]).astype(np.float32)
+    in_tail = np.asarray([Fraction(float(x)) >= start for x in points])
+    values = np.asarray(schedule.alpha(jnp.asarray(points), key))[in_tail]
     off = values != 1.0
-    assert not off.any(), list(zip(points[off].tolist(), values[off].tolist()))[:5]
+    assert not off.any(), list(zip(points[in_tail][off].tolist(), values[off].tolist()))[:5]
     phases = np.asarray(schedule.phase_alphas(n, key))
-    in_tail = [k for k in range(n) if Fraction(k, n) >= start]
-    assert all(phases[k] == 1.0 for k in in_tail), [(k, float(phases[k])) for k in in_tail if phases[k] != 1.0]
-    assert schedule.tail_phases(n) == len(in_tail)
+    tail = [k for k in range(n) if Fraction(k, n) >= start]
+    assert all(phases[k] == 1.0 for k in tail), [(k, float(phases[k])) for k in tail if phases[k] != 1.0]
+    assert schedule.tail_phases(n) == len(tail)
+
+
+@pytest.mark.parametrize("shape", sorted(set(ONE_SHAPES)))
+def test_every_form_of_an_alpha_one_tail_is_exactly_one(shape):
+    """Each way of writing alpha == 1 that counts towards the tail evaluates to exactly 1.0."""
+    tail = shape.format(one="1", mid="75%")
+    schedule = smol_dsl.parse(f"0% .. 50%: constant 1.5\n50% .. 100%: {tail}\n")
+    assert schedule.tail_start == Fraction(1, 2)
+    values = np.asarray(schedule.alpha(jnp.asarray(np.linspace(0.5, 1.0, 501, dtype=np.float32))))
+    assert np.all(values == 1.0), sorted(set(values.tolist()))
+    assert np.all(np.asarray(schedule.phase_alphas(100))[50:] == 1.0)
 
 
 # ----------------------------------------------------------------------------- declared properties
 
 
 @settings(max_examples=10, **COMMON)
-@given(valid_schedules(kinds=FAST_KINDS, bounds=True), seeds, phase_counts)
+@given(valid_schedules(kinds=NO_BELLS, bounds=True), seeds, phase_counts)
 def test_declared_bounds_hold(spec: ScheduleSpec, seed: int, n: int):
     assert spec.bounds is not None
     low, high = float(spec.bounds[2]), float(spec.bounds[3])
@@ -270,7 +303,7 @@ def test_declared_bounds_hold(spec: ScheduleSpec, seed: int, n: int):
     key = key_of(seed)
     assert schedule.certificate.bounds == (low, high)
     assert low <= schedule.certificate.minimum and schedule.certificate.maximum <= high
-    values = np.asarray(schedule.alpha(jnp.asarray(float32_grid(2001)), key), np.float64)
+    values = np.asarray(schedule.alpha(jnp.asarray(grid(2001)), key), np.float64)
     phases = np.asarray(schedule.phase_alphas(n, key), np.float64)
     for sample in (values, phases):
         slack = ATOL + RTOL * np.abs(sample)
@@ -283,45 +316,56 @@ def test_declared_and_certified_monotone_segments_are_monotone(spec: ScheduleSpe
     schedule = compile_spec(spec)
     key = key_of(seed)
     for j, segment in enumerate(spec.segments):
-        if segment.declared is None:
-            continue
-        values = np.asarray(schedule.alpha(jnp.asarray(inside(segment.start, segment.end, 200)), key))
-        assert monotone_on(values, segment.declared), (j, segment.shape, segment.declared, values)
-    for piece in schedule.certificate.pieces:
+        if segment.declared is not None:
+            points, mask = span_points(segment.start, segment.end, 200)
+            values = np.asarray(schedule.alpha(jnp.asarray(points), key))[mask & clean(spec, points)]
+            assert monotone_on(values, segment.declared), (j, segment.shape, segment.declared, values)
+    # what the certificate calls monotone is monotone, in truth and on a grid
+    for piece, (_, true) in zip(schedule.certificate.pieces, spec.pieces):
         if piece.monotone in ("increasing", "decreasing"):
-            points = inside(Fraction(piece.start), Fraction(piece.end), 200)
-            values = np.asarray(schedule.alpha(jnp.asarray(points), key))
+            assert piece.monotone in true.allowed, (piece, true)
+            points, mask = span_points(true.start, true.end, 200)
+            values = np.asarray(schedule.alpha(jnp.asarray(points), key))[mask & clean(spec, points)]
             assert monotone_on(values, piece.monotone), piece
-            assert (
-                piece.monotone in spec.segments[piece.segment - 1].allowed
-                or spec.segments[piece.segment - 1].kind == "bell"
-            ), piece
+        elif piece.monotone == "neither":
+            assert not true.allowed, (piece, true)
+        elif piece.monotone == "constant":
+            assert true.low == true.high, (piece, true)
+
+
+@pytest.mark.parametrize("way", ["increasing", "decreasing"])
+@pytest.mark.parametrize("easing", sorted(EASINGS))
+def test_true_monotone_declarations_of_easings_are_proven(easing, way):
+    """`expr a + (b - a) * EASE(u)` with a monotone easing is monotone; declared so, it verifies."""
+    a, b = ("0.67", "1") if way == "increasing" else ("1.3", "1")
+    body = f"{a} + ({b} - {a}) * {EASINGS[easing][0]}"
+    schedule = smol_dsl.parse(f"0% .. 46%: constant {a}\n46% .. 59%: expr {body} {way}\n59% .. 100%: tail\n")
+    assert schedule.certificate.pieces[1].monotone == way
 
 
 # ----------------------------------------------------------------------------- discretisation
 
 
 @settings(max_examples=10, **COMMON)
-@given(valid_schedules(kinds=FAST_KINDS, declare=False), seeds, phase_counts)
+@given(valid_schedules(kinds=NO_BELLS, declare=False), seeds, phase_counts)
 def test_phase_alphas_sample_alpha_at_phase_starts(spec: ScheduleSpec, seed: int, n: int):
     schedule = compile_spec(spec)
     key = key_of(seed)
     phases = np.asarray(schedule.phase_alphas(n, key))
     assert phases.shape == (n,)
-    sampled = np.asarray(schedule.alpha(jnp.arange(n) / n, key))
-    assert close(phases, sampled.astype(np.float64)), [
-        (k, float(phases[k]), float(sampled[k])) for k in range(n) if not close(phases[k], float(sampled[k]))
-    ][:5]
+    starts = np.asarray([k / n for k in range(n)], dtype=np.float32)  # k/N rounded once, to nearest
+    sampled = np.asarray(schedule.alpha(jnp.asarray(starts), key))
+    wrong = [(k, float(phases[k]), float(sampled[k])) for k in range(n) if not close(phases[k], sampled[k])]
+    assert not wrong, wrong[:5]
     draws = draws_of(schedule, key)
-    truth = np.asarray([spec.alpha(Fraction(k, n), draws) for k in range(n)])
-    assert close(phases, truth), [(k, float(phases[k]), truth[k]) for k in range(n) if not close(phases[k], truth[k])][
-        :5
-    ]
+    truth = [spec.alpha(Fraction(k, n), draws) for k in range(n)]
+    wrong = [(k, float(phases[k]), truth[k]) for k in range(n) if not close(phases[k], truth[k])]
+    assert not wrong, wrong[:5]
     assert np.array_equal(np.asarray(schedule.phase_alphas(n, None)), np.asarray(schedule.phase_alphas(n, key_of(0))))
 
 
 @settings(max_examples=8, **COMMON)
-@given(valid_schedules(kinds=FAST_KINDS, declare=False), seeds, phase_counts, st.data())
+@given(valid_schedules(kinds=CHEAP_KINDS, declare=False), seeds, phase_counts, st.data())
 def test_phase_alpha_is_one_compiled_function_of_a_traced_phase(spec: ScheduleSpec, seed: int, n: int, data):
     schedule = compile_spec(spec)
     key = key_of(seed)
@@ -335,10 +379,11 @@ def test_phase_alpha_is_one_compiled_function_of_a_traced_phase(spec: ScheduleSp
     jitted = jax.jit(phase)
     ks = data.draw(st.lists(st.integers(0, n - 1), min_size=3, max_size=8))
     for k in [0, n - 1, *ks]:
-        assert float(jitted(jnp.int32(k))) == float(phases[k]), k
-    assert len(traces) == 1, "phase_alpha was traced more than once for different k"
+        # compiled and op-by-op float32 may differ in the last bits (fused multiply-adds)
+        assert close(jitted(jnp.int32(k)), phases[k], rtol=1e-6, atol=1e-7), k
+    assert len(traces) == 1, "phase_alpha was traced again for another k"
     assert isinstance(traces[0], jax.core.Tracer)
-    assert np.array_equal(np.asarray(jax.vmap(jitted)(jnp.arange(n, dtype=jnp.int32))), phases)
+    assert close(jax.vmap(jitted)(jnp.arange(n, dtype=jnp.int32)), phases, rtol=1e-6, atol=1e-7)
 
 
 # ----------------------------------------------------------------------------- random segments
@@ -348,23 +393,21 @@ def test_phase_alpha_is_one_compiled_function_of_a_traced_phase(spec: ScheduleSp
 @given(valid_schedules(kinds=RANDOM_HEAVY, declare=False), seeds, seeds, phase_counts)
 def test_random_segments_are_a_function_of_the_key(spec: ScheduleSpec, seed: int, other: int, n: int):
     schedule = compile_spec(spec)
-    same = [np.asarray(schedule.phase_alphas(n, key_of(seed))) for _ in range(2)]
-    assert np.array_equal(same[0], same[1])
+    points = jnp.asarray(grid(301))
+    for evaluate in (lambda key: schedule.phase_alphas(n, key), lambda key: schedule.alpha(points, key)):
+        assert np.array_equal(np.asarray(evaluate(key_of(seed))), np.asarray(evaluate(key_of(seed))))
     first, again = draws_of(schedule, key_of(seed)), draws_of(schedule, key_of(seed))
-    for a, b in zip(first, again):
-        assert (a is None and b is None) or np.array_equal(a, b)
-    grid = jnp.asarray(float32_grid(301))
-    assert np.array_equal(
-        np.asarray(schedule.alpha(grid, key_of(seed))), np.asarray(schedule.alpha(grid, key_of(seed)))
-    )
-    if other != seed:
-        different = draws_of(schedule, key_of(other))
-        for segment, a, b in zip(spec.segments, first, different):
-            assert (segment.random is None) == (a is None) == (b is None)
-            if segment.random is not None:
-                assert a.shape == b.shape == (segment.random.count,)
-                # independent uniform float32 draws coincide with probability ~2**-23 per value
-                assert not np.array_equal(a, b) or (segment.random.count == 1 and a[0] != b[0])
+    different = draws_of(schedule, key_of(other))
+    for i, (segment, a, b, c) in enumerate(zip(spec.segments, first, again, different)):
+        assert (segment.random is None) == (a is None) == (b is None) == (c is None)
+        if segment.random is not None:
+            assert a.shape == c.shape == (segment.random.count,)
+            assert np.array_equal(a, b)
+            # the documented stream: uniform(fold_in(key, i), (count,)), i the 0-based segment position
+            stream = jax.random.uniform(jax.random.fold_in(key_of(seed), i), (segment.random.count,))
+            assert np.array_equal(a, np.asarray(stream))
+            # independent uniform float32 draws coincide with probability about 2**-23 each
+            assert seed == other or not np.array_equal(a, c)
 
 
 @settings(max_examples=10, **COMMON)
@@ -372,19 +415,20 @@ def test_random_segments_are_a_function_of_the_key(spec: ScheduleSpec, seed: int
 def test_random_values_lie_in_their_range(spec: ScheduleSpec, seed: int, n: int):
     schedule = compile_spec(spec)
     key = key_of(seed)
-    points = float32_grid(1001)
+    points = grid(1001)
+    usable = clean(spec, points)
     values = np.asarray(schedule.alpha(jnp.asarray(points), key), np.float64)
     phases = np.asarray(schedule.phase_alphas(n, key), np.float64)
+    draws = draws_of(schedule, key)
     for j, segment in enumerate(spec.segments):
         if segment.random is None:
             continue
+        assert np.all((draws[j] >= 0) & (draws[j] < 1))
         low, high = float(segment.random.low), float(segment.random.high)
-        draws = np.asarray(schedule.draws(key)[j])
-        assert np.all((draws >= 0) & (draws < 1))
-        here = [spec.segment_at(Fraction(float(x))) == j for x in points]
-        mine = [spec.segment_at(Fraction(k, n)) == j for k in range(n)]
-        for sample in (values[here], phases[mine]):
-            slack = 1e-6 * max(1.0, high)
+        here = usable & np.asarray([spec.segment_at(Fraction(float(x))) == j for x in points])
+        ours = np.asarray([spec.segment_at(Fraction(k, n)) == j for k in range(n)])
+        for sample in (values[here], phases[ours]):
+            slack = 1e-6 * high
             assert np.all(sample >= low - slack) and np.all(sample <= high + slack), (low, high, sample)
 
 
@@ -402,11 +446,11 @@ def test_random_segments_draw_one_value_per_step(case: tuple[ScheduleSpec, int],
     assert draws.shape == (r.count,)
     ks = [k for k in range(n) if segment.start <= Fraction(k, n) < segment.end]
     bins = [math.floor((Fraction(k, n) - segment.start) / r.every) for k in ks]
-    # every phase shows the draw of its bin, and a new bin means a new value
+    # every phase shows the draw of its step, and a new step brings a new value
     for k, b in zip(ks, bins):
         assert close(phases[k], float(r.low) + float(r.high - r.low) * float(draws[b])), (k, b)
     if r.low < r.high:
-        for (k0, b0), (k1, b1) in zip(zip(ks, bins), zip(ks[1:], bins[1:])):
+        for (k0, b0), (k1, b1) in pairwise(zip(ks, bins)):
             assert (phases[k0] == phases[k1]) == (b0 == b1), (k0, k1, b0, b1)
         assert len(set(phases[ks].tolist())) == len(set(bins)) == r.count
 
@@ -418,7 +462,7 @@ def test_random_segments_draw_one_value_per_step(case: tuple[ScheduleSpec, int],
     st.integers(0, 100),
     seeds,
 )
-def test_a_one_percent_random_segment_over_90_percent_has_90_values_at_100_phases(every, lo, extra, seed):
+def test_a_one_percent_random_segment_over_90_percent_gives_90_values_in_100_phases(every, lo, extra, seed):
     low, high = lo / 100, (lo + 1 + extra) / 100
     schedule = smol_dsl.parse(f"0% .. 90%: random {low} .. {high}{every}\n90% .. 100%: tail\n")
     phases = np.asarray(schedule.phase_alphas(100, key_of(seed)))
@@ -432,9 +476,10 @@ def test_a_one_percent_random_segment_over_90_percent_has_90_values_at_100_phase
 # ----------------------------------------------------------------------------- invalid schedules
 
 
-@settings(max_examples=40, **COMMON)
-@given(invalid_schedules(kinds=FAST_KINDS))
+@settings(max_examples=60, **COMMON)
+@given(invalid_schedules())
 def test_invalid_schedules_raise_one_located_schedule_error(case):
+    event(case.rule.partition(":")[0])
     try:
         smol_dsl.parse(case.text, path="case.sched")
     except smol_dsl.ScheduleError as error:
@@ -448,8 +493,8 @@ def test_invalid_schedules_raise_one_located_schedule_error(case):
     assert caught.hint, case.rule
     shown = str(caught)
     assert shown.startswith(f"case.sched:{caught.line}:{caught.column}: error: "), shown
-    assert "hint: " in shown
+    assert f"\nhint: {caught.hint}" in shown
     if case.line is not None:
-        assert caught.line == case.line, (case.rule, str(caught), case.text)
+        assert caught.line == case.line, (case.rule, shown, case.text)
     if case.message is not None:
         assert case.message in caught.message, (case.rule, caught.message)
