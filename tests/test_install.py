@@ -12,7 +12,8 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 PROBE = """
-import smol_dsl, smol_dsl.resources as r
+import smol_dsl, smol_dsl.resources as r, smol_dsl.runner, smol_dsl.tasks
+assert smol_dsl.runner.__file__.startswith({site!r}) and smol_dsl.tasks.__file__.startswith({site!r})
 assert str(r.grammar_path()).startswith({site!r}), r.grammar_path()
 assert str(r.library_dir()).startswith({site!r}), r.library_dir()
 assert len(smol_dsl.library_names()) == 8, smol_dsl.library_names()
