@@ -36,12 +36,12 @@ Metrics = dict[str, jax.Array]
 def drop_non_finite(fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Mark results with a non-finite fitness or descriptor as empty (-inf, never inserted).
 
-    Returns the cleaned fitnesses and descriptors, and how many were dropped.
+    Returns the cleaned fitnesses and descriptors, and which results were finite.
     """
     finite = jnp.isfinite(fitnesses) & jnp.all(jnp.isfinite(descriptors), axis=-1)
     fitnesses = jnp.where(finite, fitnesses, -jnp.inf)
     descriptors = jnp.where(finite[:, None], descriptors, 0.0)
-    return fitnesses, descriptors, jnp.sum(~finite)
+    return fitnesses, descriptors, finite
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,6 @@ class PhasedMapElites:
         )
         # an already-jitted scoring function is used as is, keeping its compilation cache
         self.score = scoring_fn if hasattr(scoring_fn, "lower") else jax.jit(scoring_fn)
-        self.ask = jax.jit(self.map_elites.ask)
         self._tell = jax.jit(self._tell_finite)
         self._insert = jax.jit(self._insert_finite)
         self.metrics = jax.jit(partial(default_qd_metrics, qd_offset=qd_offset))
@@ -98,7 +97,7 @@ class PhasedMapElites:
         repertoire: MapElitesRepertoire,
         emitter_state: Any,
     ) -> tuple[MapElitesRepertoire, Any, Metrics, jax.Array]:
-        fitnesses, descriptors, dropped = drop_non_finite(fitnesses, descriptors)
+        fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
         repertoire, emitter_state, metrics = self.map_elites.tell(
             genotypes=genotypes,
             fitnesses=fitnesses,
@@ -106,7 +105,7 @@ class PhasedMapElites:
             repertoire=repertoire,
             emitter_state=emitter_state,
         )
-        return repertoire, emitter_state, metrics, dropped
+        return repertoire, emitter_state, metrics, jnp.sum(~finite)
 
     def init(
         self, centroids: jax.Array, alpha: jax.Array, key: jax.Array
@@ -164,8 +163,7 @@ class PhasedMapElites:
         valid: jax.Array,
         survives: jax.Array,
     ) -> tuple[MapElitesRepertoire, jax.Array]:
-        finite = jnp.isfinite(fitnesses) & jnp.all(jnp.isfinite(descriptors), axis=-1)
-        fitnesses, descriptors, _ = drop_non_finite(fitnesses, descriptors)
+        fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
         fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
         return archive.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
 
