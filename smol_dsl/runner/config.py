@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from smol_dsl.schedule import Schedule
@@ -34,7 +34,6 @@ class RunConfig:
     line_sigma: float = LINE_SIGMA
     num_init_cvt_samples: int = 50_000
     preset: str = "custom"
-    extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def generations(self) -> int:
