@@ -21,23 +21,27 @@ class UsageError(Exception):
     """Bad command-line input that argparse itself does not catch."""
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    if value > 100_000:
-        raise argparse.ArgumentTypeError(f"must be at most 100000, got {value}")
-    return value
-
-
 def _int(text: str) -> int:
     try:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def _count(text: str) -> int:
+    """A whole number of at least 1 (an evaluation budget: no upper limit)."""
+    value = _int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    """A whole number from 1 to 100000 (phases, batch sizes, cells, steps)."""
+    value = _count(text)
+    if value > 100_000:
+        raise argparse.ArgumentTypeError(f"must be at most 100000, got {value}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -95,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("schedule", metavar="SCHEDULE", help="a .sched path or a bundled name")
     run.add_argument("--preset", default="quick", metavar="NAME", help="quick (default) or paper")
     run.add_argument("--seed", type=_int, default=None, metavar="S", help="random seed (default 0)")
-    run.add_argument("--evals", type=_positive_int_large, default=None, metavar="E", help="training evaluations")
+    run.add_argument("--evals", type=_count, default=None, metavar="E", help="training evaluations")
     run.add_argument("--phases", type=_positive_int, default=None, metavar="N", help="number of phases")
     run.add_argument("--batch-size", type=_positive_int, default=None, metavar="B", help="offspring per generation")
     run.add_argument("--centroids", type=_positive_int, default=None, metavar="C", help="CVT cells in the archive")
@@ -104,13 +108,6 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
-
-
-def _positive_int_large(text: str) -> int:
-    value = _int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
 
 
 def _load_all(names: Sequence[str]) -> tuple[list, list[str]]:
