@@ -44,11 +44,16 @@ def to_jax(expr: sp.Expr) -> Callable[[jnp.ndarray], jnp.ndarray]:
             return product
         if node.is_Pow:
             base, exponent = node.args
-            if exponent == sp.Rational(1, 2):
-                return jnp.sqrt(evaluate(base, t))
             if exponent.is_Integer and abs(int(exponent)) <= 64:
                 return jnp.power(evaluate(base, t), int(exponent))
-            return jnp.power(evaluate(base, t), evaluate(exponent, t))
+            # Verification proved the base >= 0 over the segment; float rounding at the
+            # segment's ends may still make it -1e-9, so clamp rather than return NaN.
+            clamped = jnp.maximum(evaluate(base, t), 0.0)
+            if exponent == sp.Rational(1, 2):
+                return jnp.sqrt(clamped)
+            return jnp.power(clamped, evaluate(exponent, t))
+        if isinstance(node, sp.log):  # argument proved > 0; clamp away rounding below it
+            return jnp.log(jnp.maximum(evaluate(node.args[0], t), jnp.finfo(t.dtype).tiny))
         if isinstance(node, sp.Min):
             return _fold(jnp.minimum, [evaluate(a, t) for a in node.args])
         if isinstance(node, sp.Max):

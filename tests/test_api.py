@@ -158,3 +158,15 @@ def test_optax_phases_do_not_overflow_int32(library):
     with pytest.raises(ValueError):
         library["smol"].as_optax(2**31, num_phases=100)
     assert float(library["smol"].as_optax(2**31 - 1, num_phases=100)(2**31 - 2)) == 1.0
+
+
+def test_roots_at_a_segment_edge_stay_finite_under_rounding():
+    # sqrt(u) is exactly 0 at the segment's start; float32 rounding of u there must not give NaN
+    schedule = smol_dsl.parse(
+        "0 .. 0.005: constant 0.3\n0.005 .. 0.65: expr 1.305 + (0.3 - 1.305) * sqrt(u)\n0.65 .. 1: tail\n"
+    )
+    t = jnp.asarray([0.005, np.nextafter(np.float32(0.005), np.float32(1)), 0.3, 0.65], dtype=jnp.float32)
+    values = np.asarray(schedule.alpha(t))
+    assert np.all(np.isfinite(values)), values
+    assert values[0] == pytest.approx(1.305, abs=1e-3)
+    assert np.all(np.isfinite(np.asarray(schedule.phase_alphas(200))))
