@@ -111,12 +111,8 @@ class PhasedMapElites:
         self, centroids: jax.Array, alpha: jax.Array, key: jax.Array
     ) -> tuple[MapElitesRepertoire, Any, Metrics, Evaluation]:
         """Score a random initial population at alpha and build the first archive."""
-        init_key, score_key = jax.random.split(key)
-        genotypes = self.init_genotypes(init_key, self.batch_size)
-        fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
-        empty = self.empty_archive(genotypes, centroids)
-        repertoire, emitter_state, metrics, dropped = self._tell(genotypes, fitnesses, descriptors, empty, None)
-        return repertoire, emitter_state, metrics, Evaluation(self.batch_size, int(dropped))
+        template = self.init_genotypes(jax.random.key(0), 1)  # only its shapes are used
+        return self.reseed(self.empty_archive(template, centroids), None, alpha, key)
 
     def _generation_step(
         self, repertoire: MapElitesRepertoire, emitter_state: Any, alpha: jax.Array, key: jax.Array
@@ -139,7 +135,7 @@ class PhasedMapElites:
     def reseed(
         self, repertoire: MapElitesRepertoire, emitter_state: Any, alpha: jax.Array, key: jax.Array
     ) -> tuple[MapElitesRepertoire, Any, Metrics, Evaluation]:
-        """A generation of fresh random policies, for an archive that extinction emptied."""
+        """A generation of fresh random policies: the first one, or after extinction emptied the archive."""
         init_key, score_key = jax.random.split(key)
         genotypes = self.init_genotypes(init_key, self.batch_size)
         fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
