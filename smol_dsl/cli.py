@@ -11,6 +11,10 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from smol_dsl.runner import RunConfig
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -97,17 +101,52 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("task", metavar="TASK", help="walker2d, halfcheetah or ant_omni")
     run.add_argument("schedule", metavar="SCHEDULE", help="a .sched path or a bundled name")
-    run.add_argument("--preset", default="quick", metavar="NAME", help="quick (default) or paper")
+    _add_run_options(run)
     run.add_argument("--seed", type=_int, default=None, metavar="S", help="random seed (default 0)")
-    run.add_argument("--evals", type=_count, default=None, metavar="E", help="training evaluations")
-    run.add_argument("--phases", type=_positive_int, default=None, metavar="N", help="number of phases")
-    run.add_argument("--batch-size", type=_positive_int, default=None, metavar="B", help="offspring per generation")
-    run.add_argument("--centroids", type=_positive_int, default=None, metavar="C", help="CVT cells in the archive")
-    run.add_argument("--episode-length", type=_positive_int, default=None, metavar="L", help="steps per episode")
     run.add_argument("--out", metavar="DIR", help="run directory (default runs/TASK-SCHEDULE-seedS)")
     run.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    sweep = commands.add_parser(
+        "sweep",
+        help="run several schedules x seeds together as one batched program",
+        description="Run every (schedule, seed) pair of a task together: all runs advance generation by "
+        "generation in one compiled program, split across the available devices (GPUs, or one CPU device "
+        "per core), and each gets a run directory in `run`'s format under --out. Then `smol-dsl report DIR`. "
+        "See docs/tutorial.md and docs/scaling.md.",
+    )
+    sweep.add_argument("task", metavar="TASK", help="walker2d, halfcheetah or ant_omni")
+    sweep.add_argument("schedules", nargs="+", metavar="SCHEDULE", help="a .sched path or a bundled name")
+    sweep.add_argument("--seeds", type=_positive_int, default=5, metavar="N", help="seeds per schedule (default 5)")
+    sweep.add_argument("--first-seed", type=_int, default=0, metavar="S", help="seeds are S..S+N-1 (default 0)")
+    _add_run_options(sweep)
+    sweep.add_argument("--out", metavar="DIR", help="sweep directory (default runs/TASK-sweep)")
+    sweep.add_argument("--resume", action="store_true", help="continue the sweep in --out from its last checkpoint")
+    sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sweep.add_argument(
+        "--devices",
+        type=_positive_int,
+        default=None,
+        metavar="D",
+        help="use the first D devices (default: all; on a CPU-only machine one device per core)",
+    )
+    sweep.add_argument(
+        "--runs-per-step",
+        type=_positive_int,
+        default=None,
+        metavar="K",
+        help="runs a device advances at once (default: 1 on CPUs, where small batches are fastest; all on GPUs)",
+    )
     return parser
+
+
+def _add_run_options(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--preset", default="quick", metavar="NAME", help="quick (default) or paper")
+    command.add_argument("--evals", type=_count, default=None, metavar="E", help="training evaluations per run")
+    command.add_argument("--phases", type=_positive_int, default=None, metavar="N", help="number of phases")
+    command.add_argument("--batch-size", type=_positive_int, default=None, metavar="B", help="offspring per generation")
+    command.add_argument("--centroids", type=_positive_int, default=None, metavar="C", help="CVT cells in the archive")
+    command.add_argument("--episode-length", type=_positive_int, default=None, metavar="L", help="steps per episode")
 
 
 def _load_all(names: Sequence[str]) -> tuple[list, list[str]]:
@@ -170,6 +209,23 @@ def _plot(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _config(args: argparse.Namespace, seed: int | None) -> RunConfig:
+    from smol_dsl.runner import PRESETS, preset_config
+
+    if args.preset not in PRESETS:
+        raise UsageError(f"unknown preset {args.preset!r}; the presets are {', '.join(PRESETS)}")
+    return preset_config(
+        args.task,
+        args.preset,
+        seed=seed,
+        evaluations=args.evals,
+        num_phases=args.phases,
+        batch_size=args.batch_size,
+        num_centroids=args.centroids,
+        episode_length=args.episode_length,
+    )
+
+
 def _run(args: argparse.Namespace) -> int:
     from smol_dsl import ScheduleError, load
     from smol_dsl.tasks import TASK_NAMES
@@ -181,21 +237,10 @@ def _run(args: argparse.Namespace) -> int:
     except ScheduleError as error:
         print(error, file=sys.stderr)
         return EXIT_USAGE
-    from smol_dsl.runner import PRESETS, RunError, check_config, preset_config, run_experiment
+    from smol_dsl.runner import RunError, check_config, run_experiment
     from smol_dsl.runner.progress import ProgressBar, summary_line
 
-    if args.preset not in PRESETS:
-        raise UsageError(f"unknown preset {args.preset!r}; the presets are {', '.join(PRESETS)}")
-    config = preset_config(
-        args.task,
-        args.preset,
-        seed=args.seed,
-        evaluations=args.evals,
-        num_phases=args.phases,
-        batch_size=args.batch_size,
-        num_centroids=args.centroids,
-        episode_length=args.episode_length,
-    )
+    config = _config(args, seed=args.seed)
     try:
         check_config(config, schedule)
     except ValueError as error:
@@ -228,11 +273,81 @@ def _run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    from smol_dsl.tasks import TASK_NAMES
+
+    if args.task not in TASK_NAMES:
+        raise UsageError(f"unknown task {args.task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    schedules, errors = _load_all(args.schedules)
+    if errors:
+        for error in errors:
+            print(error, file=sys.stderr)
+        return EXIT_USAGE
+    from smol_dsl.runner import RunError, check_config, run_sweep
+    from smol_dsl.runner.progress import SweepProgressBar, sweep_summary
+
+    config = _config(args, seed=None)
+    try:
+        for schedule in schedules:
+            check_config(config, schedule)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    import jax
+
+    devices = jax.local_devices()
+    if args.devices is not None:
+        if args.devices > len(devices):
+            raise UsageError(f"--devices {args.devices}: this machine has {len(devices)} ({devices[0].platform})")
+        devices = devices[: args.devices]
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    out = Path(args.out) if args.out else Path("runs") / f"{args.task}-sweep"
+    runs = len(schedules) * len(seeds)
+    print(
+        f"smol-dsl sweep: {args.task}, {len(schedules)} schedule(s) x {len(seeds)} seed(s) = {runs} runs "
+        f"on {len(devices)} {devices[0].platform} device(s), preset {config.preset}: {config.evaluations} "
+        f"evaluations per run in batches of {config.batch_size}, {config.num_phases} phases, "
+        f"{config.num_centroids} cells, {config.episode_length}-step episodes -> {out}",
+        file=sys.stderr,
+    )
+    bar = None if args.no_progress else SweepProgressBar(config, runs)
+    try:
+        results = run_sweep(
+            args.task,
+            schedules,
+            seeds,
+            config,
+            out_dir=out,
+            resume=args.resume,
+            progress=bar.update if bar else None,
+            devices=devices,
+            runs_per_step=-1 if args.runs_per_step is None else args.runs_per_step,
+        )
+    except RunError as error:
+        raise UsageError(str(error)) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    print(sweep_summary(results, out))
+    return EXIT_OK
+
+
+def use_cpu_cores_as_devices() -> None:
+    """Before JAX starts: split a CPU into one XLA device per core (unless XLA_FLAGS
+    already says how many), so that a sweep's runs use every core. It changes nothing
+    on GPUs, whose devices JAX prefers."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `smol-dsl` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)  # exits with status 2 on bad flags
-    handlers = {"check": _check, "plot": _plot, "run": _run}
+    if args.command == "sweep":
+        use_cpu_cores_as_devices()
+    handlers = {"check": _check, "plot": _plot, "run": _run, "sweep": _sweep}
     try:
         return handlers[args.command](args)
     except UsageError as error:

@@ -3,6 +3,7 @@
 from smol_dsl.runner.checkpoint import Archive, load_archive
 from smol_dsl.runner.config import PRESETS, RunConfig, check_config, preset_config
 from smol_dsl.runner.run import RunError, RunResult, run_experiment, schedule_key
+from smol_dsl.runner.sweep import run_sweep
 
 __all__ = [
     "PRESETS",
@@ -14,5 +15,6 @@ __all__ = [
     "load_archive",
     "preset_config",
     "run_experiment",
+    "run_sweep",
     "schedule_key",
 ]

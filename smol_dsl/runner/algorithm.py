@@ -44,6 +44,63 @@ def drop_non_finite(fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.A
     return fitnesses, descriptors, finite
 
 
+def make_map_elites(batch_size: int, qd_offset: float, iso_sigma: float, line_sigma: float) -> MAPElites:
+    """QDax's MAP-Elites with iso+line variation of uniformly selected elites; it is only
+    asked and told (scoring is ours, α-aware)."""
+    emitter = MixingEmitter(
+        mutation_fn=None,  # type: ignore[arg-type]
+        variation_fn=partial(isoline_variation, iso_sigma=iso_sigma, line_sigma=line_sigma),
+        variation_percentage=1.0,
+        batch_size=batch_size,
+    )
+    return MAPElites(
+        scoring_function=None,
+        emitter=emitter,
+        metrics_function=partial(default_qd_metrics, qd_offset=qd_offset),
+    )
+
+
+def tell_finite(
+    map_elites: MAPElites,
+    genotypes: Any,
+    fitnesses: jax.Array,
+    descriptors: jax.Array,
+    repertoire: MapElitesRepertoire,
+    emitter_state: Any,
+) -> tuple[MapElitesRepertoire, Any, Metrics, jax.Array]:
+    """QDax's tell after non-finite results are dropped; also returns how many were dropped."""
+    fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
+    repertoire, emitter_state, metrics = map_elites.tell(
+        genotypes=genotypes,
+        fitnesses=fitnesses,
+        descriptors=descriptors,
+        repertoire=repertoire,
+        emitter_state=emitter_state,
+    )
+    return repertoire, emitter_state, metrics, jnp.sum(~finite)
+
+
+def insert_survivors(
+    archive: MapElitesRepertoire,
+    genotypes: Any,
+    fitnesses: jax.Array,
+    descriptors: jax.Array,
+    valid: jax.Array,
+    survives: jax.Array,
+) -> tuple[MapElitesRepertoire, jax.Array]:
+    """Insert re-evaluated elites that are valid (not padding), survived extinction and
+    scored finite; also returns how many valid ones were non-finite."""
+    fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
+    fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
+    return archive.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
+
+
+def empty_archive(example_genotypes: Any, centroids: jax.Array) -> MapElitesRepertoire:
+    """An archive with no elites on these centroids, for genotypes shaped like a batch's."""
+    one = jax.tree.map(lambda x: x[0], example_genotypes)
+    return MapElitesRepertoire.init_default(genotype=one, centroids=centroids)
+
+
 @dataclass(frozen=True)
 class Evaluation:
     """What one scored batch contributed: counts for the metrics log."""
@@ -67,17 +124,7 @@ class PhasedMapElites:
     ) -> None:
         self.batch_size = batch_size
         self.init_genotypes = init_genotypes
-        emitter = MixingEmitter(
-            mutation_fn=None,  # type: ignore[arg-type]
-            variation_fn=partial(isoline_variation, iso_sigma=iso_sigma, line_sigma=line_sigma),
-            variation_percentage=1.0,
-            batch_size=batch_size,
-        )
-        self.map_elites = MAPElites(
-            scoring_function=None,
-            emitter=emitter,
-            metrics_function=partial(default_qd_metrics, qd_offset=qd_offset),
-        )
+        self.map_elites = make_map_elites(batch_size, qd_offset, iso_sigma, line_sigma)
         # an already-jitted scoring function is used as is, keeping its compilation cache
         self.score = scoring_fn if hasattr(scoring_fn, "lower") else jax.jit(scoring_fn)
         self._tell = jax.jit(self._tell_finite)
@@ -97,15 +144,7 @@ class PhasedMapElites:
         repertoire: MapElitesRepertoire,
         emitter_state: Any,
     ) -> tuple[MapElitesRepertoire, Any, Metrics, jax.Array]:
-        fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
-        repertoire, emitter_state, metrics = self.map_elites.tell(
-            genotypes=genotypes,
-            fitnesses=fitnesses,
-            descriptors=descriptors,
-            repertoire=repertoire,
-            emitter_state=emitter_state,
-        )
-        return repertoire, emitter_state, metrics, jnp.sum(~finite)
+        return tell_finite(self.map_elites, genotypes, fitnesses, descriptors, repertoire, emitter_state)
 
     def init(
         self, centroids: jax.Array, alpha: jax.Array, key: jax.Array
@@ -145,13 +184,10 @@ class PhasedMapElites:
         return repertoire, emitter_state, metrics, Evaluation(self.batch_size, int(dropped))
 
     # ------------------------------------------------------------------ re-evaluation
-    @staticmethod
-    def empty_archive(example_genotypes: Any, centroids: jax.Array) -> MapElitesRepertoire:
-        one = jax.tree.map(lambda x: x[0], example_genotypes)
-        return MapElitesRepertoire.init_default(genotype=one, centroids=centroids)
+    empty_archive = staticmethod(empty_archive)
 
+    @staticmethod
     def _insert_finite(
-        self,
         archive: MapElitesRepertoire,
         genotypes: Any,
         fitnesses: jax.Array,
@@ -159,9 +195,7 @@ class PhasedMapElites:
         valid: jax.Array,
         survives: jax.Array,
     ) -> tuple[MapElitesRepertoire, jax.Array]:
-        fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
-        fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
-        return archive.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
+        return insert_survivors(archive, genotypes, fitnesses, descriptors, valid, survives)
 
     def reevaluate(
         self, repertoire: MapElitesRepertoire, alpha: jax.Array, extinction: float, key: jax.Array

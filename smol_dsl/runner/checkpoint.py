@@ -181,3 +181,64 @@ def load_archive(path: str | os.PathLike[str]) -> Archive:
             centroids=data["centroids"],
             filled=data["filled"],
         )
+
+
+SWEEP_CHECKPOINT = "sweep-checkpoint.npz"
+
+
+def save_sweep_checkpoint(
+    path: Path, repertoires: MapElitesRepertoire, keys: jax.Array, states: list[RunState]
+) -> None:
+    """Write every run of a sweep atomically to one file: the archives stacked along a
+    runs axis (only the first len(states) runs: padding is not saved) and each run's
+    counters and metrics rows. All runs are at the same generation."""
+    runs = len(states)
+    take = slice(0, runs)
+    arrays = {
+        f"genotypes/{name}": np.asarray(leaf)[take]
+        for name, leaf in zip(_leaf_names(repertoires.genotypes), jax.tree.leaves(repertoires.genotypes), strict=True)
+    }
+    arrays["fitnesses"] = np.asarray(repertoires.fitnesses)[take]
+    arrays["descriptors"] = np.asarray(repertoires.descriptors)[take]
+    arrays["centroids"] = np.asarray(repertoires.centroids)[take]
+    arrays["keys"] = np.asarray(jax.random.key_data(keys))[take]
+    progress = [
+        {
+            "generation": s.generation,
+            "phase": s.phase,
+            "evaluations": s.evaluations,
+            "reevaluations": s.reevaluations,
+            "non_finite": s.non_finite,
+            "finished": s.finished,
+            "rows": s.rows,
+        }
+        for s in states
+    ]
+    arrays["progress"] = np.asarray(json.dumps(progress))
+    atomic_write(path, lambda file: np.savez(file, **arrays))
+
+
+def load_sweep_checkpoint(
+    path: Path, genotype_template: Any
+) -> tuple[MapElitesRepertoire, jax.Array, list[RunState]] | None:
+    """The stacked archives, keys and per-run states saved by save_sweep_checkpoint, or None."""
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        leaves = [jax.numpy.asarray(data[f"genotypes/{name}"]) for name in _leaf_names(genotype_template)]
+        repertoires = MapElitesRepertoire(
+            genotypes=jax.tree.unflatten(jax.tree.structure(genotype_template), leaves),
+            fitnesses=jax.numpy.asarray(data["fitnesses"]),
+            descriptors=jax.numpy.asarray(data["descriptors"]),
+            centroids=jax.numpy.asarray(data["centroids"]),
+            extra_scores={},
+            keys_extra_scores=(),
+        )
+        keys = jax.random.wrap_key_data(jax.numpy.asarray(data["keys"]))
+        progress = json.loads(str(data["progress"]))
+    states = [
+        RunState(None, None, None, p["generation"], p["phase"], p["evaluations"], p["reevaluations"],
+                 p["non_finite"], p["rows"], p["finished"])
+        for p in progress
+    ]  # fmt: skip
+    return repertoires, keys, states

@@ -52,3 +52,49 @@ def summary_line(result: RunResult, schedule: Schedule) -> str:
         f"re-evaluation evaluations in {format_duration(result.seconds)} "
         f"({total / max(result.seconds, 1e-9):.0f} evals/s){where}"
     )
+
+
+class SweepProgressBar:
+    """One tqdm bar for a whole sweep: generations done by every run, the phase, and the
+    best max fitness and median coverage over runs, with evaluations/s over all runs."""
+
+    def __init__(self, config: RunConfig, runs: int) -> None:
+        from tqdm import tqdm
+
+        self._bar = tqdm(total=config.generations + 1, unit="gen", dynamic_ncols=True, leave=True)
+        self._config = config
+        self._runs = runs
+        self._started = time.perf_counter()
+        self._first_evaluations: int | None = None
+
+    def update(self, rows: list[dict[str, Any]], total: int) -> None:
+        evaluations = sum(row["evaluations"] + row["reevaluations"] for row in rows)
+        if self._first_evaluations is None:
+            self._first_evaluations = evaluations
+            self._started = time.perf_counter()
+        row = rows[0]
+        if row["event"] != "reevaluate":
+            self._bar.n = row["generation"] + 1
+        elapsed = max(time.perf_counter() - self._started, 1e-9)
+        rate = (evaluations - self._first_evaluations) / elapsed
+        coverage = sorted(r["coverage"] for r in rows)[len(rows) // 2]
+        self._bar.set_postfix_str(
+            f"{self._runs} runs, phase {row['phase'] + 1}/{self._config.num_phases} "
+            f"best max {max(r['max_fitness'] for r in rows):.1f} median cov {coverage:.1f}% {rate:.0f} evals/s",
+            refresh=False,
+        )
+        self._bar.refresh()
+
+    def close(self) -> None:
+        self._bar.close()
+
+
+def sweep_summary(results: list[RunResult], out_dir: Any) -> str:
+    """What a finished sweep prints: its size, time and throughput, and what to do next."""
+    seconds = max(result.seconds for result in results)
+    total = sum(r.final["evaluations"] + r.final["reevaluations"] for r in results)
+    return (
+        f"done: {len(results)} runs of {results[0].config.task} in {format_duration(seconds)} "
+        f"({total / max(seconds, 1e-9):.0f} evals/s over all runs) -> {out_dir}\n"
+        f"next: smol-dsl report {out_dir}"
+    )

@@ -68,7 +68,12 @@ def schedule_key(seed: int) -> jax.Array:
     return jax.random.fold_in(jax.random.key(seed), 0x5CED)
 
 
-def _row(
+def start_key(seed: int) -> jax.Array:
+    """The key a run's deterministic episode start is drawn from (one per seed)."""
+    return jax.random.fold_in(jax.random.key(seed), 0x7A5C)
+
+
+def metrics_row(
     state: RunState, metrics: dict[str, jax.Array], alpha: float, event: str, evaluation: Evaluation
 ) -> dict[str, Any]:
     return {
@@ -85,7 +90,7 @@ def _row(
     }
 
 
-class _Log:
+class MetricsLog:
     """metrics.csv, appended row by row; rewritten from the checkpoint on resume."""
 
     def __init__(self, path: Path | None, rows: list[dict[str, Any]]) -> None:
@@ -125,11 +130,11 @@ def run_experiment(
             task,
             episode_length=config.episode_length,
             hidden_layer_sizes=config.hidden_layer_sizes,
-            init_key=jax.random.fold_in(jax.random.key(config.seed), 0x7A5C),
+            init_key=start_key(config.seed),
         )
     directory = Path(out_dir) if out_dir is not None else None
     if directory is not None:
-        _prepare_directory(directory, schedule, config, resume)
+        prepare_run_directory(directory, schedule, config, resume)
 
     algorithm = phased_map_elites(
         task.scoring_fn(), task.init_policies, config.batch_size, task.qd_offset, config.iso_sigma, config.line_sigma
@@ -148,17 +153,17 @@ def run_experiment(
     if state is None:
         repertoire, emitter_state, metrics, evaluation = algorithm.init(centroids, jnp.float32(alphas[0]), init_key)
         state = RunState(repertoire, emitter_state, key, 0, 0, evaluation.evaluated, 0, evaluation.non_finite, [])
-        state.rows.append(_row(state, metrics, alphas[0], "init", evaluation))
+        state.rows.append(metrics_row(state, metrics, alphas[0], "init", evaluation))
         if directory is not None:
             save_checkpoint(directory, state)
-    log = _Log(directory / "metrics.csv" if directory is not None else None, state.rows)
+    log = MetricsLog(directory / "metrics.csv" if directory is not None else None, state.rows)
     total = config.generations
     if progress is not None:
         for row in state.rows:
             progress(row, total)
 
     def record(metrics: dict[str, jax.Array], event: str, evaluation: Evaluation) -> None:
-        row = _row(state, metrics, alphas[state.phase], event, evaluation)
+        row = metrics_row(state, metrics, alphas[state.phase], event, evaluation)
         state.rows.append(row)
         log.append(row)
         if progress is not None:
@@ -190,19 +195,24 @@ def run_experiment(
         state.non_finite += evaluation.non_finite
         record(metrics, "reseed" if empty else "train", evaluation)
 
-    finished = state.generation >= total
-    if directory is not None and finished and not state.finished:
-        state.finished = True
-        save_checkpoint(directory, state)
-    if directory is not None and finished:
-        save_archive(directory / "archive.npz", state.repertoire)
-        from smol_dsl.runner.figures import save_run_figures
-
-        save_run_figures(directory, state.rows, state.repertoire, task, config, schedule)
+    if directory is not None and state.generation >= total:
+        finish_run_directory(directory, state, task, config, schedule)
     return RunResult(state.repertoire, state.rows, config, alphas, directory, time.perf_counter() - started)
 
 
-def _prepare_directory(directory: Path, schedule: Schedule, config: RunConfig, resume: bool) -> None:
+def finish_run_directory(directory: Path, state: RunState, task: Task, config: RunConfig, schedule: Schedule) -> None:
+    """Mark the run finished in its checkpoint and write archive.npz and the figures."""
+    if not state.finished:
+        state.finished = True
+        save_checkpoint(directory, state)
+    save_archive(directory / "archive.npz", state.repertoire)
+    from smol_dsl.runner.figures import save_run_figures
+
+    save_run_figures(directory, state.rows, state.repertoire, task, config, schedule)
+
+
+def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig, resume: bool) -> None:
+    """Check a directory to resume, or create one and write the run's settings into it."""
     config_path = directory / "config.json"
     if resume:
         if not config_path.is_file():

@@ -39,7 +39,7 @@ def scale_gear(env: PipelineEnv, alpha: jax.Array) -> PipelineEnv:
     return scaled
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared and hashed by identity: it holds arrays
 class Task:
     """A QD task: environment, policy network, descriptor space and α-aware scoring."""
 
@@ -62,9 +62,15 @@ class Task:
         dummy = jnp.zeros((self.env.observation_size,))
         return jax.vmap(self.policy.init, in_axes=(0, None))(keys, dummy)
 
-    def rollout(self, params: Any, alpha: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """Fitness and descriptor of one policy at actuator scale alpha."""
+    def start_state(self, init_key: jax.Array) -> State:
+        """The deterministic episode start for another init key (QDax: env.reset of a split key)."""
+        return deterministic_init_state(self.env, init_key)
+
+    def rollout(self, params: Any, alpha: jax.Array, start: State | None = None) -> tuple[jax.Array, jax.Array]:
+        """Fitness and descriptor of one policy at actuator scale alpha, from `start`
+        (default: the task's own init_state)."""
         env = scale_gear(self.env, alpha)
+        start = self.init_state if start is None else start
 
         def step(carry: tuple[State, jax.Array], _: None) -> tuple[tuple[State, jax.Array], tuple]:
             state, ended = carry
@@ -74,11 +80,16 @@ class Task:
             return (next_state, ended | (next_state.done > 0)), (self.reward(next_state), descriptor, ended)
 
         _, (rewards, descriptors, ended) = jax.lax.scan(
-            step, (self.init_state, jnp.asarray(False)), None, length=self.episode_length
+            step, (start, jnp.asarray(False)), None, length=self.episode_length
         )
         valid = ~ended  # a step counts until and including the one that ends the episode
         fitness = jnp.sum(jnp.where(valid, rewards, 0.0))
         return fitness, self.final_descriptor(descriptors, valid)
+
+    def score(self, params: Any, alpha: jax.Array, start: State | None = None) -> tuple[jax.Array, jax.Array]:
+        """Fitnesses (B,) and descriptors (B, D) of a batch of policies (not jitted: for
+        use inside other traced programs, such as a sweep's per-run step)."""
+        return jax.vmap(self.rollout, in_axes=(0, None, None))(params, alpha, start)
 
     def scoring_fn(self) -> ScoringFn:
         """The jitted (params, alpha, key) -> (fitnesses, descriptors, extra) for batches.
@@ -94,7 +105,7 @@ class Task:
         @jax.jit
         def score(params: Any, alpha: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array, dict]:
             del key
-            fitnesses, descriptors = jax.vmap(self.rollout, in_axes=(0, None))(params, alpha)
+            fitnesses, descriptors = self.score(params, alpha)
             return fitnesses, descriptors, {}
 
         return score

@@ -1,0 +1,291 @@
+"""A sweep: every (schedule, seed) pair of one task, run together as one batched program.
+
+`run_sweep(task, schedules, seeds, config)` advances all runs generation by generation
+with `BatchedMapElites` (runs sharded across the local devices) and writes one run
+directory per pair, in `run_experiment`'s format, so each can be opened, plotted and
+reported like a single run. The sweep's own checkpoint holds every run at the same
+boundary, written atomically, so an interrupted sweep resumes exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from smol_dsl.runner.algorithm import Evaluation, cvt_centroids
+from smol_dsl.runner.batched import BatchedMapElites, stack_runs
+from smol_dsl.runner.checkpoint import (
+    SWEEP_CHECKPOINT,
+    RunState,
+    atomic_write,
+    load_sweep_checkpoint,
+    save_sweep_checkpoint,
+)
+from smol_dsl.runner.config import RunConfig
+from smol_dsl.runner.run import (
+    MetricsLog,
+    RunError,
+    RunResult,
+    finish_run_directory,
+    metrics_row,
+    prepare_run_directory,
+    schedule_key,
+    start_key,
+)
+from smol_dsl.schedule import Schedule
+from smol_dsl.tasks import Task, make_task
+
+SWEEP_FILE = "sweep.json"
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    """One (schedule, seed) pair of a sweep and the name of its run directory."""
+
+    schedule: Schedule
+    config: RunConfig
+    name: str
+
+
+def run_name(task: str, schedule: Schedule, seed: int) -> str:
+    """A run directory's name: TASK-SCHEDULE-seedS (SCHEDULE: the file's stem, or its name)."""
+    stem = Path(schedule.path).stem if schedule.path else schedule.name
+    return f"{task}-{stem}-seed{seed}"
+
+
+def plan_sweep(schedules: Sequence[Schedule], seeds: Sequence[int], config: RunConfig) -> list[SweepRun]:
+    """Every (schedule, seed) pair, schedules outermost; refuses repeated names."""
+    if not schedules:
+        raise RunError("a sweep needs at least one schedule")
+    if not seeds:
+        raise RunError("a sweep needs at least one seed")
+    runs = [
+        SweepRun(schedule, dataclasses.replace(config, seed=seed), run_name(config.task, schedule, seed))
+        for schedule in schedules
+        for seed in seeds
+    ]
+    names = [run.name for run in runs]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise RunError(
+            f"two runs of the sweep would share the directory {repeated[0]}: give each schedule "
+            "and seed once, and schedules from different folders different file names"
+        )
+    return runs
+
+
+@lru_cache(maxsize=8)
+def batched_map_elites(
+    task: Task,
+    batch_size: int,
+    iso_sigma: float,
+    line_sigma: float,
+    devices: tuple[jax.Device, ...],
+    runs_per_step: int | None,
+) -> BatchedMapElites:
+    """A shared BatchedMapElites per setting, so sweeps in one process reuse compilations."""
+    return BatchedMapElites(
+        task,
+        batch_size=batch_size,
+        iso_sigma=iso_sigma,
+        line_sigma=line_sigma,
+        devices=list(devices),
+        runs_per_step=runs_per_step,
+    )
+
+
+def run_sweep(
+    task: Task | str,
+    schedules: Sequence[Schedule],
+    seeds: Sequence[int],
+    config: RunConfig,
+    *,
+    out_dir: str | Path | None = None,
+    resume: bool = False,
+    progress: Callable[[list[dict[str, Any]], int], None] | None = None,
+    stop_after_generation: int | None = None,
+    devices: Sequence[jax.Device] | None = None,
+    runs_per_step: int | None = -1,
+) -> list[RunResult]:
+    """Run every (schedule, seed) pair of `task` together; return one RunResult per pair.
+
+    `config` is shared (its own seed is ignored). With `out_dir`, writes `sweep.json`, the
+    sweep checkpoint and one run directory per pair; with `resume`, continues from the
+    last checkpoint. `devices` (default: all local devices) share the runs;
+    `runs_per_step` is how many runs a device advances at once (-1: one on CPU, all on
+    accelerators; None: all). `progress(rows, total)` gets the latest row of every run.
+    """
+    started = time.perf_counter()
+    runs = plan_sweep(schedules, seeds, config)
+    if isinstance(task, str):
+        task = make_task(
+            task,
+            episode_length=config.episode_length,
+            hidden_layer_sizes=config.hidden_layer_sizes,
+            init_key=start_key(runs[0].config.seed),
+        )
+    directory = Path(out_dir) if out_dir is not None else None
+    if directory is not None:
+        _prepare_sweep_directory(directory, runs, config, resume)
+
+    devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
+    engine = batched_map_elites(task, config.batch_size, config.iso_sigma, config.line_sigma, devices, runs_per_step)
+    padded = runs + [runs[-1]] * (engine.padded_runs(len(runs)) - len(runs))  # copies; results dropped
+    main_keys, init_keys, all_centroids = [], [], {}
+    for run in padded:
+        seed = run.config.seed
+        key, cvt_key, init_key = jax.random.split(jax.random.key(seed), 3)
+        main_keys.append(key)
+        init_keys.append(init_key)
+        if seed not in all_centroids:
+            all_centroids[seed] = cvt_centroids(
+                config.num_centroids, task.descriptor_low, task.descriptor_high, config.num_init_cvt_samples, cvt_key
+            )
+    starts = {seed: task.start_state(start_key(seed)) for seed in all_centroids}
+    starts = engine.put(stack_runs([starts[run.config.seed] for run in padded]))
+    alphas = np.stack(
+        [np.asarray(run.schedule.phase_alphas(config.num_phases, schedule_key(run.config.seed))) for run in padded]
+    )
+    extinctions = engine.put(jnp.asarray([r.schedule.extinction for r in padded], dtype=jnp.float32))
+    checkpoint = directory / SWEEP_CHECKPOINT if directory is not None else None
+
+    def alphas_of(phase: int) -> jax.Array:
+        return engine.put(jnp.asarray(alphas[:, phase], dtype=jnp.float32))
+
+    saved = None
+    if checkpoint is not None and resume:
+        saved = load_sweep_checkpoint(checkpoint, task.init_policies(jax.random.key(0), 1))
+    if saved is not None:
+        repertoires, keys, states = saved
+        extra = len(padded) - len(runs)
+        repertoires, keys = jax.tree.map(lambda x: jnp.concatenate([x] + [x[-1:]] * extra), (repertoires, keys))
+        repertoires, keys = engine.put(repertoires), engine.put(keys)
+    else:
+        centroids = jnp.stack([all_centroids[run.config.seed] for run in padded])
+        repertoires = engine.empty_archives(centroids)
+        repertoires, metrics, dropped, _ = engine.step(
+            repertoires, alphas_of(0), starts, engine.put(jnp.stack(init_keys))
+        )
+        keys = engine.put(jnp.stack(main_keys))
+        states = []
+        for r in range(len(runs)):
+            state = RunState(None, None, None, 0, 0, config.batch_size, 0, int(dropped[r]), [])
+            evaluation = Evaluation(config.batch_size, int(dropped[r]))
+            state.rows.append(metrics_row(state, _run_metrics(metrics, r), alphas[r, 0], "init", evaluation))
+            states.append(state)
+        if checkpoint is not None:
+            save_sweep_checkpoint(checkpoint, repertoires, keys, states)
+
+    logs = [
+        MetricsLog(directory / run.name / "metrics.csv" if directory is not None else None, state.rows)
+        for run, state in zip(runs, states, strict=True)
+    ]
+    total = config.generations
+    if progress is not None:
+        progress([state.rows[-1] for state in states], total)
+
+    def record(metrics: dict[str, np.ndarray], events: list[str], evaluated: np.ndarray, dropped: np.ndarray) -> None:
+        for r, (state, log) in enumerate(zip(states, logs, strict=True)):
+            evaluation = Evaluation(int(evaluated[r]), int(dropped[r]))
+            row = metrics_row(state, _run_metrics(metrics, r), alphas[r, state.phase], events[r], evaluation)
+            state.rows.append(row)
+            log.append(row)
+        if progress is not None:
+            progress([state.rows[-1] for state in states], total)
+
+    for generation in range(states[0].generation + 1, total + 1):
+        if stop_after_generation is not None and generation > stop_after_generation:
+            break
+        phase = config.phase_of_generation(generation)
+        if phase != states[0].phase:
+            keys, subkeys = engine.split(keys)
+            repertoires, evaluated, dropped = engine.reevaluate(
+                repertoires, alphas_of(phase), starts, extinctions, subkeys
+            )
+            for r, state in enumerate(states):
+                state.phase = phase
+                state.reevaluations += int(evaluated[r])
+                state.non_finite += int(dropped[r])
+            record(engine.metrics(repertoires), ["reevaluate"] * len(runs), evaluated, dropped)
+            if checkpoint is not None:
+                save_sweep_checkpoint(checkpoint, repertoires, keys, states)
+        keys, subkeys = engine.split(keys)
+        repertoires, metrics, dropped, reseeded = engine.step(repertoires, alphas_of(phase), starts, subkeys)
+        for r, state in enumerate(states):
+            state.generation = generation
+            state.evaluations += config.batch_size
+            state.non_finite += int(dropped[r])
+        events = ["reseed" if reseeded[r] else "train" for r in range(len(runs))]
+        record(metrics, events, np.full(len(runs), config.batch_size), dropped)
+
+    finished = states[0].generation >= total
+    results = []
+    host_keys = jax.device_get(jax.random.key_data(keys))
+    for r, (run, state) in enumerate(zip(runs, states, strict=True)):
+        state.repertoire = jax.tree.map(lambda x, r=r: x[r], repertoires)
+        state.key = jax.random.wrap_key_data(host_keys[r])
+        if directory is not None and finished:
+            finish_run_directory(directory / run.name, state, task, run.config, run.schedule)
+        results.append(
+            RunResult(
+                state.repertoire,
+                state.rows,
+                run.config,
+                alphas[r],
+                directory / run.name if directory is not None else None,
+                time.perf_counter() - started,
+            )
+        )
+    if checkpoint is not None and finished and not all(s.finished for s in states):
+        for state in states:
+            state.finished = True
+        save_sweep_checkpoint(checkpoint, repertoires, keys, states)
+    return results
+
+
+def _run_metrics(metrics: dict[str, np.ndarray], run: int) -> dict[str, float]:
+    return {name: float(values[run]) for name, values in metrics.items()}
+
+
+def _sweep_description(runs: list[SweepRun], config: RunConfig) -> dict[str, Any]:
+    shared = json.loads(dataclasses.replace(config, seed=0).to_json())
+    del shared["seed"]
+    return {
+        "task": config.task,
+        "config": shared,
+        "runs": [
+            {"name": run.name, "schedule": run.schedule.name, "seed": run.config.seed, "source": run.schedule.source}
+            for run in runs
+        ],
+    }
+
+
+def _prepare_sweep_directory(directory: Path, runs: list[SweepRun], config: RunConfig, resume: bool) -> None:
+    description = _sweep_description(runs, config)
+    sweep_file = directory / SWEEP_FILE
+    if resume:
+        if not sweep_file.is_file():
+            raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
+        saved = json.loads(sweep_file.read_text())
+        if saved != description:
+            raise RunError(
+                f"{directory} was started with different settings, schedules or seeds; "
+                "resume it with the same command line"
+            )
+    elif directory.exists() and any(directory.iterdir()):
+        raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
+    else:
+        directory.mkdir(parents=True, exist_ok=True)
+        atomic_write(sweep_file, lambda f: f.write(json.dumps(description, indent=2).encode()))
+    for run in runs:
+        prepare_run_directory(directory / run.name, run.schedule, run.config, resume)
