@@ -137,6 +137,24 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K",
         help="runs a device advances at once (default: 1 on CPUs, where small batches are fastest; all on GPUs)",
     )
+
+    report = commands.add_parser(
+        "report",
+        help="the paper's U-test table and figures from finished runs",
+        description="Collect the finished runs in the given directories (sweep or run directories, searched "
+        "recursively), and write the paper's table - median final score per schedule and one-sided "
+        "Mann-Whitney U p-values of 'column better than row' - as Markdown and LaTeX, the final scores, and "
+        "figures of median and interquartile range over seeds (PNG and PDF) with the final archives.",
+    )
+    report.add_argument("dirs", nargs="+", metavar="DIR", help="sweep or run directories")
+    report.add_argument("-o", "--out", metavar="OUT", help="output directory (default DIR/report for one DIR)")
+    report.add_argument(
+        "--metric",
+        default=None,
+        metavar="NAME",
+        help="final score: max_fitness, coverage or qd_score (default: the paper's, max_fitness for "
+        "walker2d and halfcheetah, coverage for ant_omni)",
+    )
     return parser
 
 
@@ -331,6 +349,25 @@ def _sweep(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _report(args: argparse.Namespace) -> int:
+    from smol_dsl.report import METRICS, ReportError, write_report
+
+    if args.metric is not None and args.metric not in METRICS:
+        raise UsageError(f"unknown metric {args.metric!r}; the metrics are {', '.join(METRICS)}")
+    if args.out is None and len(args.dirs) > 1:
+        raise UsageError("with several DIRs, say where the report goes with -o OUT")
+    out = Path(args.out) if args.out else Path(args.dirs[0]) / "report"
+    try:
+        report = write_report(args.dirs, out, args.metric)
+    except ReportError as error:
+        raise UsageError(str(error)) from None
+    table = report.table
+    print(f"{table.task}, final {table.metric} ({sum(table.runs.values())} runs):\n")
+    print(table.markdown())
+    print(f"wrote {', '.join(str(f) for f in report.files)}")
+    return EXIT_OK
+
+
 def use_cpu_cores_as_devices() -> None:
     """Before JAX starts: split a CPU into one XLA device per core (unless XLA_FLAGS
     already says how many), so that a sweep's runs use every core. It changes nothing
@@ -347,7 +384,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)  # exits with status 2 on bad flags
     if args.command == "sweep":
         use_cpu_cores_as_devices()
-    handlers = {"check": _check, "plot": _plot, "run": _run, "sweep": _sweep}
+    handlers = {"check": _check, "plot": _plot, "run": _run, "sweep": _sweep, "report": _report}
     try:
         return handlers[args.command](args)
     except UsageError as error:

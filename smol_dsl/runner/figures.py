@@ -41,32 +41,56 @@ def metrics_figure(rows: list[dict[str, Any]], config: RunConfig, schedule: Sche
     return figure
 
 
+def draw_archive(
+    ax: Any,
+    centroids: np.ndarray,
+    fitnesses: np.ndarray,
+    low: tuple[float, ...],
+    high: tuple[float, ...],
+    *,
+    pixels: int = 400,
+    vmin: float | None = None,
+    vmax: float | None = None,
+) -> Any:
+    """Draw a 2-D archive on ax: each CVT cell (its Voronoi region, rasterised by nearest
+    centroid) coloured by its elite's fitness; empty cells are left blank. Returns the image."""
+    from scipy.spatial import cKDTree
+
+    xs = np.linspace(low[0], high[0], pixels)
+    ys = np.linspace(low[1], high[1], pixels)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    _, cell = cKDTree(np.asarray(centroids)).query(grid)
+    fitnesses = np.asarray(fitnesses, dtype=float).reshape(-1)
+    image = np.where(fitnesses[cell] > -np.inf, fitnesses[cell], np.nan).reshape(pixels, pixels)
+    shown = ax.imshow(
+        image,
+        origin="lower",
+        extent=(low[0], high[0], low[1], high[1]),
+        aspect="auto",
+        cmap="viridis",
+        vmin=vmin,
+        vmax=vmax,
+    )
+    filled = fitnesses > -np.inf
+    ax.scatter(*np.asarray(centroids)[~filled].T, s=2, color="0.75", label="empty cell")
+    ax.set_xlabel("descriptor 1")
+    ax.set_ylabel("descriptor 2")
+    return shown
+
+
 def archive_figure(repertoire: Any, task: Task, title: str, *, pixels: int = 400) -> Any:
-    """The final archive as a 2-D map: each CVT cell (its Voronoi region, rasterised by
-    nearest centroid) coloured by its elite's fitness; empty cells are left blank."""
+    """The final archive as a 2-D map, coloured by fitness, with its coverage."""
     import matplotlib
 
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
-    from scipy.spatial import cKDTree
-
-    low, high = np.asarray(task.descriptor_low), np.asarray(task.descriptor_high)
-    xs = np.linspace(low[0], high[0], pixels)
-    ys = np.linspace(low[1], high[1], pixels)
-    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
-    _, cell = cKDTree(np.asarray(repertoire.centroids)).query(grid)
-    fitnesses = np.asarray(repertoire.fitnesses, dtype=float).reshape(-1)
-    image = np.where(fitnesses[cell] > -np.inf, fitnesses[cell], np.nan).reshape(pixels, pixels)
 
     figure = Figure(figsize=(5.6, 4.8), layout="constrained")
     ax = figure.add_subplot()
-    shown = ax.imshow(image, origin="lower", extent=(low[0], high[0], low[1], high[1]), aspect="auto", cmap="viridis")
-    filled = fitnesses > -np.inf
-    ax.scatter(*np.asarray(repertoire.centroids)[~filled].T, s=2, color="0.75", label="empty cell")
+    fitnesses = np.asarray(repertoire.fitnesses).reshape(-1)
+    shown = draw_archive(ax, repertoire.centroids, fitnesses, task.descriptor_low, task.descriptor_high, pixels=pixels)
     figure.colorbar(shown, ax=ax, label="fitness")
-    coverage = 100 * filled.mean()
-    ax.set_xlabel("descriptor 1")
-    ax.set_ylabel("descriptor 2")
+    coverage = 100 * (fitnesses > -np.inf).mean()
     ax.set_title(f"{title}\ncoverage {coverage:.1f}%", fontsize=10)
     return figure
 

@@ -21,4 +21,14 @@ def make_task(name: str, **options: Any) -> Task:
     return make(**options)
 
 
-__all__ = ["TASK_NAMES", "ScoringFn", "Task", "make_task", "scale_gear"]
+def descriptor_bounds(name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """A task's descriptor box (low, high), without building its environment."""
+    if name not in TASK_NAMES:
+        raise ValueError(f"unknown task {name!r}; the tasks are {', '.join(TASK_NAMES)}")
+    from importlib import import_module
+
+    module = import_module(f"smol_dsl.tasks.{name}")
+    return module.DESCRIPTOR_LOW, module.DESCRIPTOR_HIGH
+
+
+__all__ = ["TASK_NAMES", "ScoringFn", "Task", "descriptor_bounds", "make_task", "scale_gear"]

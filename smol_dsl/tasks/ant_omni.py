@@ -15,6 +15,8 @@ from brax.envs.base import State
 from smol_dsl.tasks.base import Task, deterministic_init_state, last_valid, make_policy
 
 POSITION_LIMIT = 30.0
+DESCRIPTOR_LOW = (-POSITION_LIMIT, -POSITION_LIMIT)
+DESCRIPTOR_HIGH = (POSITION_LIMIT, POSITION_LIMIT)
 REWARD_OFFSET = 3.0  # QDax's offset for ant_omni
 
 
@@ -44,8 +46,8 @@ def make(
         policy=make_policy(hidden_layer_sizes, env.action_size),
         episode_length=episode_length,
         descriptor_size=2,
-        descriptor_low=(-POSITION_LIMIT, -POSITION_LIMIT),
-        descriptor_high=(POSITION_LIMIT, POSITION_LIMIT),
+        descriptor_low=DESCRIPTOR_LOW,
+        descriptor_high=DESCRIPTOR_HIGH,
         qd_offset=REWARD_OFFSET * episode_length,
         init_state=deterministic_init_state(env, key),
         state_descriptor=xy_position,

@@ -10,6 +10,11 @@ from brax.envs.base import State
 from smol_dsl.tasks.base import Task, deterministic_init_state, make_policy, mean_over_valid
 
 
+def duty_factor_bounds(feet: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The descriptor box of duty factors: [0, 1] per foot."""
+    return (0.0,) * feet, (1.0,) * feet
+
+
 def feet_task(
     env_name: str,
     feet: tuple[str, ...],
@@ -36,8 +41,8 @@ def feet_task(
         policy=make_policy(hidden_layer_sizes, env.action_size),
         episode_length=episode_length,
         descriptor_size=len(feet),
-        descriptor_low=(0.0,) * len(feet),
-        descriptor_high=(1.0,) * len(feet),
+        descriptor_low=duty_factor_bounds(len(feet))[0],
+        descriptor_high=duty_factor_bounds(len(feet))[1],
         qd_offset=reward_offset * episode_length,
         init_state=deterministic_init_state(env, key),
         state_descriptor=feet_contact,
