@@ -1,0 +1,217 @@
+"""`smol-dsl sweep`: runs as one batched program, equal to single runs, sharded over
+devices with equal results, resumable, one run directory per (schedule, seed)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from smol_dsl.cli import main
+from smol_dsl.report import load_runs
+from smol_dsl.runner import RunError, load_archive, preset_config, run_experiment, run_sweep
+from smol_dsl.runner.sweep import plan_sweep
+
+# the same settings as the command-line flags below, so CLI sweeps can be compared with these
+FLAGS = ["--evals", "208", "--batch-size", "16", "--phases", "10", "--centroids", "32", "--episode-length", "20"]
+CONFIG = preset_config(
+    "walker2d", "quick", evaluations=208, batch_size=16, num_phases=10, num_centroids=32, episode_length=20
+)
+SCHEDULES = ("human", "extinction-50")
+SEEDS = (0, 1)
+
+
+@pytest.fixture(scope="module")
+def schedules(library):
+    return [library[name] for name in SCHEDULES]
+
+
+@pytest.fixture(scope="module")
+def sweep(schedules, tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep") / "walker2d-sweep"
+    return out, run_sweep("walker2d", schedules, SEEDS, CONFIG, out_dir=out)
+
+
+def assert_same_runs(results, others, exact=False):
+    """The same runs: bit for bit when both ran in the same program (`exact`); else the
+    same events, counts, alphas and filled cells, and scores equal to float32 rounding
+    (XLA compiles a rollout differently inside another program, which may round a last
+    bit differently)."""
+    assert len(results) == len(others)
+    for a, b in zip(results, others, strict=True):
+        fitnesses_a, fitnesses_b = np.asarray(a.repertoire.fitnesses), np.asarray(b.repertoire.fitnesses)
+        if exact:
+            np.testing.assert_array_equal(fitnesses_a, fitnesses_b)
+            assert a.metrics == b.metrics
+            continue
+        np.testing.assert_array_equal(fitnesses_a > -np.inf, fitnesses_b > -np.inf)
+        np.testing.assert_allclose(fitnesses_a, fitnesses_b, rtol=1e-5)
+        assert len(a.metrics) == len(b.metrics)
+        for x, y in zip(a.metrics, b.metrics, strict=True):
+            assert {k: v for k, v in x.items() if not isinstance(v, float)} == {
+                k: v for k, v in y.items() if not isinstance(v, float)
+            }
+            assert x["alpha"] == y["alpha"]
+            for name in ("coverage", "max_fitness", "qd_score"):
+                assert x[name] == pytest.approx(y[name], rel=1e-5)
+
+
+def test_a_sweep_run_equals_the_single_run(sweep, schedules):
+    _, results = sweep
+    for index in (0, 3):  # human seed 0, extinction-50 seed 1
+        schedule, seed = schedules[index // 2], SEEDS[index % 2]
+        single = run_experiment("walker2d", schedule, dataclasses.replace(CONFIG, seed=seed))
+        assert results[index].config == single.config
+        np.testing.assert_array_equal(results[index].alphas, single.alphas)
+        assert_same_runs([results[index]], [single])
+
+
+def test_one_run_directory_per_pair_in_the_run_format(sweep, schedules):
+    out, results = sweep
+    names = sorted(p.name for p in out.iterdir() if p.is_dir())
+    assert names == sorted(f"walker2d-{s}-seed{seed}" for s in SCHEDULES for seed in SEEDS)
+    for result in results:
+        directory = result.out_dir
+        for file in ("config.json", "schedule.sched", "certificate.json", "metrics.csv", "archive.npz", "metrics.png"):
+            assert (directory / file).is_file(), file
+        archive = load_archive(directory)
+        np.testing.assert_array_equal(archive.fitnesses, np.asarray(result.repertoire.fitnesses).reshape(-1))
+    groups = load_runs([out])  # what `report` reads
+    assert [len(runs) for runs in groups.values()] == [2, 2]
+    for result, run in zip(results, [r for runs in groups.values() for r in runs], strict=True):
+        assert run.final["max_fitness"] == pytest.approx(result.final["max_fitness"])
+    assert json.loads((out / "sweep.json").read_text())["runs"][0]["name"] == "walker2d-human-seed0"
+
+
+def test_every_run_reaches_the_standard_body_and_extinction_thins(sweep):
+    _, results = sweep
+    for result in results:
+        assert result.final["alpha"] == 1.0
+        assert result.final["evaluations"] == 208
+    reseeded = [row["event"] for result in results[2:] for row in result.metrics]
+    assert "reevaluate" in reseeded
+
+
+def test_resume_after_interruption_equals_an_uninterrupted_sweep(sweep, schedules, tmp_path):
+    _, uninterrupted = sweep
+    out = tmp_path / "interrupted"
+    partial = run_sweep("walker2d", schedules, SEEDS, CONFIG, out_dir=out, stop_after_generation=5)
+    assert partial[0].final["generation"] == 5 and not (out / "walker2d-human-seed0" / "archive.npz").exists()
+    resumed = run_sweep("walker2d", schedules, SEEDS, CONFIG, out_dir=out, resume=True)
+    assert_same_runs(resumed, uninterrupted, exact=True)
+
+
+def test_sweep_refuses_to_overwrite_or_resume_something_else(sweep, schedules, library):
+    out, _ = sweep
+    with pytest.raises(RunError, match="already exists"):
+        run_sweep("walker2d", schedules, SEEDS, CONFIG, out_dir=out)
+    with pytest.raises(RunError, match="different settings, schedules or seeds"):
+        run_sweep("walker2d", schedules, (0, 1, 2), CONFIG, out_dir=out, resume=True)
+    with pytest.raises(RunError, match="share the directory walker2d-human-seed0"):
+        plan_sweep([library["human"], library["human"]], [0], CONFIG)
+
+
+MULTI_DEVICE = """
+import json, sys
+import jax, numpy as np, smol_dsl
+from smol_dsl.runner import preset_config, run_sweep
+config = preset_config("walker2d", "quick", evaluations=208, batch_size=16, num_phases=10, num_centroids=32,
+                       episode_length=20)
+schedules = [smol_dsl.load("human"), smol_dsl.load("extinction-50"), smol_dsl.load("smol")]  # 3 runs: padded
+out = {}
+for name, devices, per_step in (("one", jax.devices()[:1], -1), ("two", jax.devices(), -1),
+                                ("two-vmapped", jax.devices(), None)):
+    runs = run_sweep("walker2d", schedules, [0], config, devices=devices, runs_per_step=per_step)
+    out[name] = [dict(fitnesses=np.asarray(r.repertoire.fitnesses).tolist(), rows=r.metrics) for r in runs]
+out["devices"] = len(jax.devices())
+with open(sys.argv[1], "w") as file:
+    json.dump(out, file)
+"""
+
+
+def test_runs_sharded_over_two_devices_equal_one_device(tmp_path):
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    result = tmp_path / "result.json"
+    done = subprocess.run(
+        [sys.executable, "-c", MULTI_DEVICE, str(result)], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert done.returncode == 0, done.stderr
+    out = json.loads(result.read_text())
+    assert out["devices"] == 2
+    for name in ("two", "two-vmapped"):
+        for one, other in zip(out["one"], out[name], strict=True):
+            a, b = np.asarray(one["fitnesses"]), np.asarray(other["fitnesses"])
+            np.testing.assert_array_equal(a > -np.inf, b > -np.inf)
+            np.testing.assert_allclose(a, b, rtol=1e-5)
+            for x, y in zip(one["rows"], other["rows"], strict=True):
+                for field in ("event", "evaluations", "reevaluations", "alpha", "non_finite"):
+                    assert x[field] == y[field]
+                assert x["max_fitness"] == pytest.approx(y["max_fitness"], rel=1e-5)
+
+
+def test_cli_sweep_killed_then_resumed_equals_uninterrupted(sweep, tmp_path):
+    """`smol-dsl sweep` (one CPU device per core) killed with SIGKILL, then --resume."""
+    _, uninterrupted = sweep
+    out = tmp_path / "killed"
+    command = [sys.executable, "-m", "smol_dsl.cli", "sweep", "walker2d", *SCHEDULES, "--seeds", "2", *FLAGS]
+    command += ["--out", str(out), "--no-progress"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and process.poll() is None:
+        checkpoint = out / "sweep-checkpoint.npz"
+        if checkpoint.is_file():
+            try:
+                with np.load(checkpoint) as data:
+                    generation = json.loads(str(data["progress"]))[0]["generation"]
+            except (OSError, ValueError, KeyError):
+                generation = 0
+            if generation >= 3:
+                break
+        time.sleep(0.2)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert not (out / "walker2d-human-seed0" / "archive.npz").exists(), "killed too late to test resuming"
+    resumed = subprocess.run([*command, "--resume"], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "next: smol-dsl report" in resumed.stdout
+    for result in uninterrupted:  # in-process on one device; the CLI used one device per core
+        archive = load_archive(out / result.out_dir.name)
+        np.testing.assert_array_equal(archive.filled, np.asarray(result.repertoire.fitnesses).reshape(-1) > -np.inf)
+        np.testing.assert_allclose(archive.fitnesses, np.asarray(result.repertoire.fitnesses).reshape(-1), rtol=1e-5)
+        rows = (out / result.out_dir.name / "metrics.csv").read_text().splitlines()
+        assert len(rows) == len(result.metrics) + 1
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["sweep", "hopper", "human"], "unknown task 'hopper'"),
+        (["sweep", "walker2d", "human", "--devices", "64"], "--devices 64: this machine has"),
+        (["sweep", "walker2d", "human", "--phases", "5"], "no phase lies wholly in the alpha = 1 tail"),
+        (["sweep", "walker2d", "human", "--seeds", "0"], "must be at least 1"),
+    ],
+)
+def test_cli_sweep_bad_input(args, message, tmp_path, capsys):
+    try:
+        code = main([*args, "--out", str(tmp_path / "s")])
+    except SystemExit as exit:  # argparse's own checks
+        code = exit.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_cli_sweep_bad_schedule_file(tmp_path, capsys):
+    broken = tmp_path / "broken.sched"
+    broken.write_text('name "broken"\nconstant 1 until %\n')
+    assert main(["sweep", "walker2d", "human", str(broken), "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert "broken.sched:2:" in err and "Traceback" not in err
+    assert not (tmp_path / "s").exists()
