@@ -137,6 +137,19 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K",
         help="runs a device advances at once (default: 1 on CPUs, where small batches are fastest; all on GPUs)",
     )
+    several = sweep.add_argument_group(
+        "several machines",
+        "share one sweep between processes, e.g. one per machine: each runs every N-th (schedule, seed) pair "
+        "on its own devices and writes into the same --out (a shared file system); see docs/scaling.md",
+    )
+    several.add_argument("--num-processes", type=_positive_int, metavar="N", help="how many processes share the sweep")
+    several.add_argument("--process-id", type=_int, metavar="I", help="this process's index, 0..N-1")
+    several.add_argument(
+        "--cluster",
+        action="store_true",
+        help="take N and I from the cluster's launcher (Slurm: SLURM_NTASKS, SLURM_PROCID; Open MPI: "
+        "OMPI_COMM_WORLD_SIZE, OMPI_COMM_WORLD_RANK)",
+    )
 
     report = commands.add_parser(
         "report",
@@ -312,6 +325,7 @@ def _sweep(args: argparse.Namespace) -> int:
         raise UsageError(str(error)) from None
     import jax
 
+    part = _sweep_part(args)
     devices = jax.local_devices()
     if args.devices is not None:
         if args.devices > len(devices):
@@ -319,9 +333,11 @@ def _sweep(args: argparse.Namespace) -> int:
         devices = devices[: args.devices]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     out = Path(args.out) if args.out else Path("runs") / f"{args.task}-sweep"
-    runs = len(schedules) * len(seeds)
+    runs = len(range(part[0], len(schedules) * len(seeds), part[1]))
+    share = f" (process {part[0]} of {part[1]}: {runs} of them)" if part[1] > 1 else ""
     print(
-        f"smol-dsl sweep: {args.task}, {len(schedules)} schedule(s) x {len(seeds)} seed(s) = {runs} runs "
+        f"smol-dsl sweep: {args.task}, {len(schedules)} schedule(s) x {len(seeds)} seed(s) = "
+        f"{len(schedules) * len(seeds)} runs{share} "
         f"on {len(devices)} {devices[0].platform} device(s), preset {config.preset}: {config.evaluations} "
         f"evaluations per run in batches of {config.batch_size}, {config.num_phases} phases, "
         f"{config.num_centroids} cells, {config.episode_length}-step episodes -> {out}",
@@ -339,6 +355,7 @@ def _sweep(args: argparse.Namespace) -> int:
             progress=bar.update if bar else None,
             devices=devices,
             runs_per_step=-1 if args.runs_per_step is None else args.runs_per_step,
+            part=part,
         )
     except RunError as error:
         raise UsageError(str(error)) from None
@@ -347,6 +364,36 @@ def _sweep(args: argparse.Namespace) -> int:
             bar.close()
     print(sweep_summary(results, out))
     return EXIT_OK
+
+
+CLUSTER_VARIABLES = (("SLURM_NTASKS", "SLURM_PROCID"), ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"))
+
+
+def _sweep_part(args: argparse.Namespace) -> tuple[int, int]:
+    """This process's share of the sweep: (index, number of processes)."""
+    if args.cluster:
+        if args.num_processes is not None or args.process_id is not None:
+            raise UsageError(
+                "--cluster takes --num-processes and --process-id from the launcher; give one or the other"
+            )
+        for count, index in CLUSTER_VARIABLES:
+            if count in os.environ and index in os.environ:
+                return _checked_part(int(os.environ[index]), int(os.environ[count]))
+        names = " or ".join(f"{count} and {index}" for count, index in CLUSTER_VARIABLES)
+        raise UsageError(
+            f"--cluster: no cluster launcher found ({names} are not set); use --num-processes and --process-id"
+        )
+    if args.num_processes is None and args.process_id is None:
+        return 0, 1
+    if args.num_processes is None or args.process_id is None:
+        raise UsageError("give --num-processes and --process-id together")
+    return _checked_part(args.process_id, args.num_processes)
+
+
+def _checked_part(index: int, count: int) -> tuple[int, int]:
+    if not 0 <= index < count:
+        raise UsageError(f"process {index} of {count}: the index must be from 0 to {count - 1}")
+    return index, count
 
 
 def _report(args: argparse.Namespace) -> int:
@@ -364,6 +411,10 @@ def _report(args: argparse.Namespace) -> int:
     table = report.table
     print(f"{table.task}, final {table.metric} ({sum(table.runs.values())} runs):\n")
     print(table.markdown())
+    for note in table.notes()[:3]:
+        print(f"note: {note}", file=sys.stderr)
+    if len(table.notes()) > 3:
+        print(f"note: and {len(table.notes()) - 3} more pairs like these", file=sys.stderr)
     print(f"wrote {', '.join(str(f) for f in report.files)}")
     return EXIT_OK
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import csv
 import json
+import math
+import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -193,6 +195,19 @@ class PValueTable:
     runs: dict[str, int]
     pvalues: dict[str, dict[str, float | None]]
 
+    def notes(self) -> list[str]:
+        """Warnings about the table's power: with few runs no p-value can fall below 0.05."""
+        notes = []
+        for row in self.rows:
+            for column in self.columns:
+                if row != column and smallest_p(self.runs[column], self.runs[row]) >= SIGNIFICANCE:
+                    notes.append(
+                        f"{column} ({self.runs[column]} runs) vs {row} ({self.runs[row]} runs): the smallest "
+                        f"possible p-value is {smallest_p(self.runs[column], self.runs[row]):.3g}, so this pair "
+                        f"cannot reach p < {SIGNIFICANCE}; run more seeds (the paper used 7 to 10)"
+                    )
+        return notes
+
     @property
     def best(self) -> str:
         return max(self.rows, key=lambda name: self.medians[name])
@@ -227,6 +242,11 @@ class PValueTable:
             lines.append(" & ".join(cells) + " \\\\")
         lines += ["\\bottomrule", "\\end{tabular}"]
         return "\n".join(lines) + "\n"
+
+
+def smallest_p(runs_a: int, runs_b: int) -> float:
+    """The smallest p-value an exact one-sided U test can give with these sample sizes."""
+    return 1 / math.comb(runs_a + runs_b, runs_a)
 
 
 def _number(value: float) -> str:
@@ -304,7 +324,10 @@ def results_figure(groups: dict[str, list[RunRecord]], names: Sequence[str], tit
             runs = groups[name]
             evaluations = runs[0].curve(metric)[0]
             values = np.stack([run.curve(metric)[1] for run in runs])
-            low, median, high = np.percentile(values, [25, 50, 75], axis=0)
+            values[~np.isfinite(values)] = np.nan  # max fitness of an archive emptied by extinction
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a moment when every archive is empty
+                low, median, high = np.nanpercentile(values, [25, 50, 75], axis=0)
             color = ORDER_COLORS.get(name, colors[(i + len(ORDER_COLORS)) % len(colors)])
             ax.plot(evaluations, median, color=color, lw=1.5, label=f"{name} ({len(runs)})")
             ax.fill_between(evaluations, low, high, color=color, alpha=0.2, lw=0)

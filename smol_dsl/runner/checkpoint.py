@@ -22,7 +22,7 @@ CHECKPOINT = "checkpoint.npz"
 
 def atomic_write(path: Path, write: Any) -> None:
     """Call write(file) on a temporary file, fsync it, and rename it over path."""
-    temporary = path.with_name(path.name + ".tmp")
+    temporary = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # processes may share a directory
     with open(temporary, "wb") as file:
         write(file)
         file.flush()

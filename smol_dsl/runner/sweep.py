@@ -116,6 +116,7 @@ def run_sweep(
     stop_after_generation: int | None = None,
     devices: Sequence[jax.Device] | None = None,
     runs_per_step: int | None = -1,
+    part: tuple[int, int] = (0, 1),
 ) -> list[RunResult]:
     """Run every (schedule, seed) pair of `task` together; return one RunResult per pair.
 
@@ -124,9 +125,17 @@ def run_sweep(
     last checkpoint. `devices` (default: all local devices) share the runs;
     `runs_per_step` is how many runs a device advances at once (-1: one on CPU, all on
     accelerators; None: all). `progress(rows, total)` gets the latest row of every run.
+    `part=(k, n)` runs only every n-th pair from the k-th (one process of n sharing a
+    sweep, each on its own devices; see docs/scaling.md) and returns those.
     """
     started = time.perf_counter()
-    runs = plan_sweep(schedules, seeds, config)
+    every = plan_sweep(schedules, seeds, config)
+    index, parts = part
+    if not 0 <= index < parts:
+        raise RunError(f"part {index} of {parts} does not exist")
+    runs = every[index::parts]
+    if not runs:
+        raise RunError(f"the sweep has {len(every)} runs, too few for {parts} parts (processes)")
     if isinstance(task, str):
         task = make_task(
             task,
@@ -136,7 +145,7 @@ def run_sweep(
         )
     directory = Path(out_dir) if out_dir is not None else None
     if directory is not None:
-        _prepare_sweep_directory(directory, runs, config, resume)
+        _prepare_sweep_directory(directory, every, runs, config, resume, shared=parts > 1)
 
     devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
     engine = batched_map_elites(task, config.batch_size, config.iso_sigma, config.line_sigma, devices, runs_per_step)
@@ -157,7 +166,8 @@ def run_sweep(
         [np.asarray(run.schedule.phase_alphas(config.num_phases, schedule_key(run.config.seed))) for run in padded]
     )
     extinctions = engine.put(jnp.asarray([r.schedule.extinction for r in padded], dtype=jnp.float32))
-    checkpoint = directory / SWEEP_CHECKPOINT if directory is not None else None
+    checkpoint_name = SWEEP_CHECKPOINT if parts == 1 else f"sweep-checkpoint-{index}-of-{parts}.npz"
+    checkpoint = directory / checkpoint_name if directory is not None else None
 
     def alphas_of(phase: int) -> jax.Array:
         return engine.put(jnp.asarray(alphas[:, phase], dtype=jnp.float32))
@@ -270,22 +280,29 @@ def _sweep_description(runs: list[SweepRun], config: RunConfig) -> dict[str, Any
     }
 
 
-def _prepare_sweep_directory(directory: Path, runs: list[SweepRun], config: RunConfig, resume: bool) -> None:
-    description = _sweep_description(runs, config)
+def _prepare_sweep_directory(
+    directory: Path, every: list[SweepRun], runs: list[SweepRun], config: RunConfig, resume: bool, shared: bool
+) -> None:
+    """Write or check sweep.json (all runs) and prepare this process's run directories.
+    A directory `shared` by several processes may already hold the others' runs."""
+    description = _sweep_description(every, config)
     sweep_file = directory / SWEEP_FILE
-    if resume:
-        if not sweep_file.is_file():
-            raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
-        saved = json.loads(sweep_file.read_text())
-        if saved != description:
-            raise RunError(
-                f"{directory} was started with different settings, schedules or seeds; "
-                "resume it with the same command line"
-            )
-    elif directory.exists() and any(directory.iterdir()):
-        raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
-    else:
+    saved = json.loads(sweep_file.read_text()) if sweep_file.is_file() else None
+    if resume and saved is None:
+        raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
+    if saved is not None and saved != description and (resume or shared):
+        raise RunError(
+            f"{directory} was started with different settings, schedules or seeds; resume it with the same command line"
+        )
+    if not resume:
+        busy = [d for d in ([directory] if not shared else [directory / r.name for r in runs]) if _non_empty(d)]
+        if busy:
+            raise RunError(f"{busy[0]} already exists and is not empty; use --resume to continue it or another --out")
         directory.mkdir(parents=True, exist_ok=True)
         atomic_write(sweep_file, lambda f: f.write(json.dumps(description, indent=2).encode()))
     for run in runs:
         prepare_run_directory(directory / run.name, run.schedule, run.config, resume)
+
+
+def _non_empty(directory: Path) -> bool:
+    return directory.exists() and any(directory.iterdir())

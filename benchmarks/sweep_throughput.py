@@ -1,0 +1,118 @@
+"""Sweep throughput, measured side by side in one process (the machines are noisy).
+
+Eight walker2d runs (4 schedules x 2 seeds, the runner's quick batch and episodes, a
+short budget) are timed three ways, after one warm-up of each so that compilation is
+left out:
+
+- sequential: `run_experiment` eight times, one after another (as eight `smol-dsl run`s);
+- sweep: `run_sweep` of the eight, on every local device (what `smol-dsl sweep` does:
+  on a CPU-only machine one XLA device per core);
+- sweep_one_device: `run_sweep` on the first device only.
+
+Prints `name: value` lines, among them:
+
+- batched_over_sequential: sequential time over sweep time (target >= 1.2 on a 2-core CPU);
+- batched_one_device_over_sequential: the same with the sweep held to one device;
+- two_devices_over_one: sweep_one_device time over the sweep's time on two devices.
+
+Usage: python benchmarks/sweep_throughput.py [--generations 40] [--devices 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import warnings
+
+warnings.filterwarnings("ignore")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--generations", type=int, default=40, help="generations per run after the first")
+    parser.add_argument("--batch-size", type=int, default=128)
+    parser.add_argument("--episode-length", type=int, default=100)
+    parser.add_argument("--devices", type=int, default=2, help="CPU devices to split the host into (default 2)")
+    args = parser.parse_args()
+    os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
+
+    import jax
+
+    import smol_dsl
+    from smol_dsl.runner import preset_config, run_experiment, run_sweep
+    from smol_dsl.tasks import make_task
+
+    devices = jax.local_devices()
+    config = preset_config(
+        "walker2d",
+        "quick",
+        evaluations=args.batch_size * (args.generations + 1),
+        batch_size=args.batch_size,
+        episode_length=args.episode_length,
+        num_phases=4,
+        num_centroids=256,
+        num_init_cvt_samples=10_000,
+    )
+    schedules = [smol_dsl.load(name) for name in ("vanilla", "smol", "smol-reverse", "human")]
+    seeds = [0, 1]
+    runs = len(schedules) * len(seeds)
+    print(
+        f"# walker2d, {runs} runs of {config.evaluations} evaluations (batch {config.batch_size}, "
+        f"{config.episode_length}-step episodes, {config.num_phases} phases); {len(devices)} "
+        f"{devices[0].platform} device(s), {os.cpu_count()} cores",
+        flush=True,
+    )
+    task = make_task("walker2d", episode_length=config.episode_length, hidden_layer_sizes=config.hidden_layer_sizes)
+    warm = dict(evaluations=config.batch_size * (config.num_phases + 2))
+
+    def sequential(evaluations: int | None = None) -> float:
+        started = time.perf_counter()
+        for schedule in schedules:
+            for seed in seeds:
+                cfg = preset_config("walker2d", "quick", **{**_fields(config), "seed": seed, **_budget(evaluations)})
+                run_experiment(task, schedule, cfg)
+        return time.perf_counter() - started
+
+    def sweep(on: list, evaluations: int | None = None) -> float:
+        started = time.perf_counter()
+        cfg = preset_config("walker2d", "quick", **{**_fields(config), **_budget(evaluations)})
+        run_sweep(task, schedules, seeds, cfg, devices=on)
+        return time.perf_counter() - started
+
+    sequential(warm["evaluations"])
+    sweep(devices, warm["evaluations"])
+    sweep(devices[:1], warm["evaluations"])
+
+    times = {
+        "sequential": sequential(),
+        "sweep": sweep(devices),
+        "sweep_one_device": sweep(devices[:1]),
+    }
+    total = runs * config.evaluations
+    for name, seconds in times.items():
+        print(f"{name}_s: {seconds:.2f}  ({total / seconds:.0f} training evals/s)")
+    print(f"batched_over_sequential: {times['sequential'] / times['sweep']:.3f}")
+    print(f"batched_one_device_over_sequential: {times['sequential'] / times['sweep_one_device']:.3f}")
+    if len(devices) >= 2:
+        print(f"two_devices_over_one: {times['sweep_one_device'] / times['sweep']:.3f}")
+    sys.stdout.flush()
+
+
+def _fields(config: object) -> dict:
+    import dataclasses
+
+    fields = dataclasses.asdict(config)
+    for name in ("task", "preset"):
+        fields.pop(name)
+    fields["hidden_layer_sizes"] = tuple(fields["hidden_layer_sizes"])
+    return fields
+
+
+def _budget(evaluations: int | None) -> dict:
+    return {} if evaluations is None else {"evaluations": evaluations}
+
+
+if __name__ == "__main__":
+    main()
