@@ -1,4 +1,4 @@
-"""The `smol-dsl` command line: check and plot schedules.
+"""The `smol-dsl` command line: check, plot, run, sweep and report.
 
 Bad input of any kind (a broken file, a missing file, a bad flag) prints one clear error
 and exits with status 2, without a Python traceback.
@@ -9,12 +9,14 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypeVar
 
 if TYPE_CHECKING:
     from smol_dsl.runner import RunConfig
+
+T = TypeVar("T")
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -268,8 +270,8 @@ def _run(args: argparse.Namespace) -> int:
     except ScheduleError as error:
         print(error, file=sys.stderr)
         return EXIT_USAGE
-    from smol_dsl.runner import RunError, check_config, run_experiment
-    from smol_dsl.runner.progress import ProgressBar, summary_line
+    from smol_dsl.runner import check_config, run_experiment
+    from smol_dsl.runner.progress import summary_line
 
     config = _config(args, seed=args.seed)
     try:
@@ -290,18 +292,31 @@ def _run(args: argparse.Namespace) -> int:
             "--preset paper runs the paper's experiment (1e7 evaluations; for a GPU)",
             file=sys.stderr,
         )
+    result = _with_progress(
+        args,
+        config,
+        lambda progress: run_experiment(
+            args.task, schedule, config, out_dir=out, resume=args.resume, progress=progress
+        ),
+    )
+    print(summary_line(result, schedule))
+    return EXIT_OK
+
+
+def _with_progress(args: argparse.Namespace, config: RunConfig, start: Callable[[Any], T]) -> T:
+    """start(progress callback or None), with a progress bar unless --no-progress; a
+    RunError (bad directory, settings) becomes a usage error."""
+    from smol_dsl.runner import RunError
+    from smol_dsl.runner.progress import ProgressBar
+
     bar = None if args.no_progress else ProgressBar(config)
     try:
-        result = run_experiment(
-            args.task, schedule, config, out_dir=out, resume=args.resume, progress=bar.update if bar else None
-        )
+        return start(bar.update if bar else None)
     except RunError as error:
         raise UsageError(str(error)) from None
     finally:
         if bar is not None:
             bar.close()
-    print(summary_line(result, schedule))
-    return EXIT_OK
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -314,8 +329,8 @@ def _sweep(args: argparse.Namespace) -> int:
         for error in errors:
             print(error, file=sys.stderr)
         return EXIT_USAGE
-    from smol_dsl.runner import RunError, check_config, run_sweep
-    from smol_dsl.runner.progress import SweepProgressBar, sweep_summary
+    from smol_dsl.runner import check_config, run_sweep
+    from smol_dsl.runner.progress import sweep_summary
 
     config = _config(args, seed=None)
     try:
@@ -343,25 +358,22 @@ def _sweep(args: argparse.Namespace) -> int:
         f"{config.num_centroids} cells, {config.episode_length}-step episodes -> {out}",
         file=sys.stderr,
     )
-    bar = None if args.no_progress else SweepProgressBar(config, runs)
-    try:
-        results = run_sweep(
+    results = _with_progress(
+        args,
+        config,
+        lambda progress: run_sweep(
             args.task,
             schedules,
             seeds,
             config,
             out_dir=out,
             resume=args.resume,
-            progress=bar.update if bar else None,
+            progress=progress,
             devices=devices,
             runs_per_step=-1 if args.runs_per_step is None else args.runs_per_step,
             part=part,
-        )
-    except RunError as error:
-        raise UsageError(str(error)) from None
-    finally:
-        if bar is not None:
-            bar.close()
+        ),
+    )
     print(sweep_summary(results, out))
     return EXIT_OK
 

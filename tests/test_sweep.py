@@ -215,3 +215,35 @@ def test_cli_sweep_bad_schedule_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "broken.sched:2:" in err and "Traceback" not in err
     assert not (tmp_path / "s").exists()
+
+
+def test_processes_share_a_sweep_by_index(schedules, monkeypatch):
+    from smol_dsl.cli import _sweep_part, build_parser
+
+    def part(*flags):
+        return _sweep_part(build_parser().parse_args(["sweep", "walker2d", "human", *flags]))
+
+    assert part() == (0, 1)
+    assert part("--num-processes", "3", "--process-id", "2") == (2, 3)
+    monkeypatch.setenv("SLURM_NTASKS", "4")
+    monkeypatch.setenv("SLURM_PROCID", "1")
+    assert part("--cluster") == (1, 4)
+    with pytest.raises(RunError, match="part 2 of 2 does not exist"):
+        run_sweep("walker2d", schedules, SEEDS, CONFIG, part=(2, 2))
+    with pytest.raises(RunError, match="4 runs, too few for 5 parts"):
+        run_sweep("walker2d", schedules, SEEDS, CONFIG, part=(4, 5))
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--num-processes", "2"], "give --num-processes and --process-id together"),
+        (["--num-processes", "2", "--process-id", "2"], "the index must be from 0 to 1"),
+        (["--cluster"], "--cluster: no launcher found"),
+    ],
+)
+def test_cli_sweep_bad_process_flags(flags, message, tmp_path, capsys, monkeypatch):
+    for name in ("SLURM_NTASKS", "SLURM_PROCID", "OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"):
+        monkeypatch.delenv(name, raising=False)
+    assert main(["sweep", "walker2d", "human", *flags, "--out", str(tmp_path / "s")]) == 2
+    assert message in capsys.readouterr().err

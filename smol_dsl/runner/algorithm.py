@@ -127,8 +127,8 @@ class PhasedMapElites:
         self.map_elites = make_map_elites(batch_size, qd_offset, iso_sigma, line_sigma)
         # an already-jitted scoring function is used as is, keeping its compilation cache
         self.score = scoring_fn if hasattr(scoring_fn, "lower") else jax.jit(scoring_fn)
-        self._tell = jax.jit(self._tell_finite)
-        self._insert = jax.jit(self._insert_finite)
+        self._tell = jax.jit(partial(tell_finite, self.map_elites))
+        self._insert = jax.jit(insert_survivors)
         self.metrics = jax.jit(partial(default_qd_metrics, qd_offset=qd_offset))
         self._gather = jax.jit(lambda tree, index: jax.tree.map(lambda x: x[index], tree))
         # A generation is one program: variation, rollouts and insertion fused, and the
@@ -136,16 +136,6 @@ class PhasedMapElites:
         self._generation = jax.jit(self._generation_step, donate_argnums=(0,))
 
     # ------------------------------------------------------------------ training
-    def _tell_finite(
-        self,
-        genotypes: Any,
-        fitnesses: jax.Array,
-        descriptors: jax.Array,
-        repertoire: MapElitesRepertoire,
-        emitter_state: Any,
-    ) -> tuple[MapElitesRepertoire, Any, Metrics, jax.Array]:
-        return tell_finite(self.map_elites, genotypes, fitnesses, descriptors, repertoire, emitter_state)
-
     def init(
         self, centroids: jax.Array, alpha: jax.Array, key: jax.Array
     ) -> tuple[MapElitesRepertoire, Any, Metrics, Evaluation]:
@@ -159,7 +149,7 @@ class PhasedMapElites:
         ask_key, score_key = jax.random.split(key)
         genotypes, _ = self.map_elites.ask(repertoire, emitter_state, ask_key)
         fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)
-        return self._tell_finite(genotypes, fitnesses, descriptors, repertoire, emitter_state)
+        return tell_finite(self.map_elites, genotypes, fitnesses, descriptors, repertoire, emitter_state)
 
     def generation(
         self, repertoire: MapElitesRepertoire, emitter_state: Any, alpha: jax.Array, key: jax.Array
@@ -185,17 +175,6 @@ class PhasedMapElites:
 
     # ------------------------------------------------------------------ re-evaluation
     empty_archive = staticmethod(empty_archive)
-
-    @staticmethod
-    def _insert_finite(
-        archive: MapElitesRepertoire,
-        genotypes: Any,
-        fitnesses: jax.Array,
-        descriptors: jax.Array,
-        valid: jax.Array,
-        survives: jax.Array,
-    ) -> tuple[MapElitesRepertoire, jax.Array]:
-        return insert_survivors(archive, genotypes, fitnesses, descriptors, valid, survives)
 
     def reevaluate(
         self, repertoire: MapElitesRepertoire, alpha: jax.Array, extinction: float, key: jax.Array

@@ -63,21 +63,34 @@ class RunState:
     finished: bool = False
 
 
-def save_checkpoint(directory: Path, state: RunState) -> None:
-    """Write the run's state atomically to directory/checkpoint.npz."""
-    if state.emitter_state is not None:
-        raise NotImplementedError("only stateless emitters (iso+line) are checkpointed")
+def _repertoire_arrays(repertoire: MapElitesRepertoire) -> dict[str, np.ndarray]:
+    """An archive's arrays by name: `genotypes/<param path>`, fitnesses, descriptors, centroids."""
+    genotypes = repertoire.genotypes
     arrays = {
         f"genotypes/{name}": np.asarray(leaf)
-        for name, leaf in zip(
-            _leaf_names(state.repertoire.genotypes), jax.tree.leaves(state.repertoire.genotypes), strict=True
-        )
+        for name, leaf in zip(_leaf_names(genotypes), jax.tree.leaves(genotypes), strict=True)
     }
-    arrays["fitnesses"] = np.asarray(state.repertoire.fitnesses)
-    arrays["descriptors"] = np.asarray(state.repertoire.descriptors)
-    arrays["centroids"] = np.asarray(state.repertoire.centroids)
-    arrays["key"] = np.asarray(jax.random.key_data(state.key))
-    progress = {
+    arrays["fitnesses"] = np.asarray(repertoire.fitnesses)
+    arrays["descriptors"] = np.asarray(repertoire.descriptors)
+    arrays["centroids"] = np.asarray(repertoire.centroids)
+    return arrays
+
+
+def _repertoire_from(data: Any, genotype_template: Any) -> MapElitesRepertoire:
+    """The archive saved by _repertoire_arrays, its genotypes shaped like the template's."""
+    leaves = [jax.numpy.asarray(data[f"genotypes/{name}"]) for name in _leaf_names(genotype_template)]
+    return MapElitesRepertoire(
+        genotypes=jax.tree.unflatten(jax.tree.structure(genotype_template), leaves),
+        fitnesses=jax.numpy.asarray(data["fitnesses"]),
+        descriptors=jax.numpy.asarray(data["descriptors"]),
+        centroids=jax.numpy.asarray(data["centroids"]),
+        extra_scores={},
+        keys_extra_scores=(),
+    )
+
+
+def _progress(state: RunState) -> dict[str, Any]:
+    return {
         "generation": state.generation,
         "phase": state.phase,
         "evaluations": state.evaluations,
@@ -86,7 +99,19 @@ def save_checkpoint(directory: Path, state: RunState) -> None:
         "finished": state.finished,
         "rows": state.rows,
     }
-    arrays["progress"] = np.asarray(json.dumps(progress))
+
+
+def _state(progress: dict[str, Any], repertoire: MapElitesRepertoire | None, key: jax.Array | None) -> RunState:
+    return RunState(repertoire=repertoire, emitter_state=None, key=key, **progress)
+
+
+def save_checkpoint(directory: Path, state: RunState) -> None:
+    """Write the run's state atomically to directory/checkpoint.npz."""
+    if state.emitter_state is not None:
+        raise NotImplementedError("only stateless emitters (iso+line) are checkpointed")
+    arrays = _repertoire_arrays(state.repertoire)
+    arrays["key"] = np.asarray(jax.random.key_data(state.key))
+    arrays["progress"] = np.asarray(json.dumps(_progress(state)))
     atomic_write(directory / CHECKPOINT, lambda file: np.savez(file, **arrays))
 
 
@@ -96,47 +121,18 @@ def load_checkpoint(directory: Path, genotype_template: Any) -> RunState | None:
     if not path.is_file():
         return None
     with np.load(path, allow_pickle=False) as data:
-        names = _leaf_names(genotype_template)
-        leaves = [data[f"genotypes/{name}"] for name in names]
-        genotypes = jax.tree.unflatten(jax.tree.structure(genotype_template), [jax.numpy.asarray(x) for x in leaves])
-        repertoire = MapElitesRepertoire(
-            genotypes=genotypes,
-            fitnesses=jax.numpy.asarray(data["fitnesses"]),
-            descriptors=jax.numpy.asarray(data["descriptors"]),
-            centroids=jax.numpy.asarray(data["centroids"]),
-            extra_scores={},
-            keys_extra_scores=(),
-        )
+        repertoire = _repertoire_from(data, genotype_template)
         key = jax.random.wrap_key_data(jax.numpy.asarray(data["key"]))
         progress = json.loads(str(data["progress"]))
-    return RunState(
-        repertoire=repertoire,
-        emitter_state=None,
-        key=key,
-        generation=progress["generation"],
-        phase=progress["phase"],
-        evaluations=progress["evaluations"],
-        reevaluations=progress["reevaluations"],
-        non_finite=progress["non_finite"],
-        rows=progress["rows"],
-        finished=progress["finished"],
-    )
+    return _state(progress, repertoire, key)
 
 
 def save_archive(path: Path, repertoire: MapElitesRepertoire) -> None:
     """The final archive as `.npz`: `genotypes/<param path>` (C, ...), `fitnesses` (C,),
     `descriptors` (C, D), `centroids` (C, D), `filled` (C,); empty cells have fitness -inf."""
-    arrays = {
-        f"genotypes/{name}": np.asarray(leaf)
-        for name, leaf in zip(_leaf_names(repertoire.genotypes), jax.tree.leaves(repertoire.genotypes), strict=True)
-    }
-    fitnesses = np.asarray(repertoire.fitnesses).reshape(-1)
-    arrays.update(
-        fitnesses=fitnesses,
-        descriptors=np.asarray(repertoire.descriptors),
-        centroids=np.asarray(repertoire.centroids),
-        filled=fitnesses > -np.inf,
-    )
+    arrays = _repertoire_arrays(repertoire)
+    fitnesses = arrays["fitnesses"].reshape(-1)
+    arrays.update(fitnesses=fitnesses, filled=fitnesses > -np.inf)
     atomic_write(path, lambda file: np.savez(file, **arrays))
 
 
@@ -193,28 +189,9 @@ def save_sweep_checkpoint(
     runs axis (only the first len(states) runs: padding is not saved) and each run's
     counters and metrics rows. All runs are at the same generation."""
     runs = len(states)
-    take = slice(0, runs)
-    arrays = {
-        f"genotypes/{name}": np.asarray(leaf)[take]
-        for name, leaf in zip(_leaf_names(repertoires.genotypes), jax.tree.leaves(repertoires.genotypes), strict=True)
-    }
-    arrays["fitnesses"] = np.asarray(repertoires.fitnesses)[take]
-    arrays["descriptors"] = np.asarray(repertoires.descriptors)[take]
-    arrays["centroids"] = np.asarray(repertoires.centroids)[take]
-    arrays["keys"] = np.asarray(jax.random.key_data(keys))[take]
-    progress = [
-        {
-            "generation": s.generation,
-            "phase": s.phase,
-            "evaluations": s.evaluations,
-            "reevaluations": s.reevaluations,
-            "non_finite": s.non_finite,
-            "finished": s.finished,
-            "rows": s.rows,
-        }
-        for s in states
-    ]
-    arrays["progress"] = np.asarray(json.dumps(progress))
+    arrays = {name: values[:runs] for name, values in _repertoire_arrays(repertoires).items()}
+    arrays["keys"] = np.asarray(jax.random.key_data(keys))[:runs]
+    arrays["progress"] = np.asarray(json.dumps([_progress(state) for state in states]))
     atomic_write(path, lambda file: np.savez(file, **arrays))
 
 
@@ -225,20 +202,7 @@ def load_sweep_checkpoint(
     if not path.is_file():
         return None
     with np.load(path, allow_pickle=False) as data:
-        leaves = [jax.numpy.asarray(data[f"genotypes/{name}"]) for name in _leaf_names(genotype_template)]
-        repertoires = MapElitesRepertoire(
-            genotypes=jax.tree.unflatten(jax.tree.structure(genotype_template), leaves),
-            fitnesses=jax.numpy.asarray(data["fitnesses"]),
-            descriptors=jax.numpy.asarray(data["descriptors"]),
-            centroids=jax.numpy.asarray(data["centroids"]),
-            extra_scores={},
-            keys_extra_scores=(),
-        )
+        repertoires = _repertoire_from(data, genotype_template)
         keys = jax.random.wrap_key_data(jax.numpy.asarray(data["keys"]))
         progress = json.loads(str(data["progress"]))
-    states = [
-        RunState(None, None, None, p["generation"], p["phase"], p["evaluations"], p["reevaluations"],
-                 p["non_finite"], p["rows"], p["finished"])
-        for p in progress
-    ]  # fmt: skip
-    return repertoires, keys, states
+    return repertoires, keys, [_state(p, None, None) for p in progress]

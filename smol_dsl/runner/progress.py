@@ -11,7 +11,9 @@ from smol_dsl.schedule import Schedule
 
 
 class ProgressBar:
-    """A tqdm bar over generations showing phase, alpha, coverage, max fitness, evals/s."""
+    """A tqdm bar over generations. For one run it shows the phase, alpha, coverage, max
+    fitness and evals/s; for a sweep (`update` given every run's row) the phase, the best
+    max fitness and the median coverage over runs, and evals/s over all runs."""
 
     def __init__(self, config: RunConfig) -> None:
         from tqdm import tqdm
@@ -21,20 +23,26 @@ class ProgressBar:
         self._started = time.perf_counter()
         self._first_evaluations: int | None = None
 
-    def update(self, row: dict[str, Any], total: int) -> None:
-        evaluations = row["evaluations"] + row["reevaluations"]
+    def update(self, rows: dict[str, Any] | list[dict[str, Any]], total: int) -> None:
+        """Show the latest row of a run, or the latest rows of every run of a sweep."""
+        rows = [rows] if isinstance(rows, dict) else rows
+        evaluations = sum(row["evaluations"] + row["reevaluations"] for row in rows)
         if self._first_evaluations is None:
             self._first_evaluations = evaluations
             self._started = time.perf_counter()
+        row = rows[0]
         if row["event"] != "reevaluate":
             self._bar.n = row["generation"] + 1
         elapsed = max(time.perf_counter() - self._started, 1e-9)
         rate = (evaluations - self._first_evaluations) / elapsed
-        self._bar.set_postfix_str(
-            f"phase {row['phase'] + 1}/{self._config.num_phases} alpha {row['alpha']:.3f} "
-            f"cov {row['coverage']:.1f}% max {row['max_fitness']:.1f} {rate:.0f} evals/s",
-            refresh=False,
-        )
+        phase = f"phase {row['phase'] + 1}/{self._config.num_phases}"
+        if len(rows) == 1:
+            about = f"{phase} alpha {row['alpha']:.3f} cov {row['coverage']:.1f}% max {row['max_fitness']:.1f}"
+        else:
+            coverage = sorted(r["coverage"] for r in rows)[len(rows) // 2]
+            best = max(r["max_fitness"] for r in rows)
+            about = f"{len(rows)} runs, {phase} best max {best:.1f} median cov {coverage:.1f}%"
+        self._bar.set_postfix_str(f"{about} {rate:.0f} evals/s", refresh=False)
         self._bar.refresh()
 
     def close(self) -> None:
@@ -52,41 +60,6 @@ def summary_line(result: RunResult, schedule: Schedule) -> str:
         f"re-evaluation evaluations in {format_duration(result.seconds)} "
         f"({total / max(result.seconds, 1e-9):.0f} evals/s){where}"
     )
-
-
-class SweepProgressBar:
-    """One tqdm bar for a whole sweep: generations done by every run, the phase, and the
-    best max fitness and median coverage over runs, with evaluations/s over all runs."""
-
-    def __init__(self, config: RunConfig, runs: int) -> None:
-        from tqdm import tqdm
-
-        self._bar = tqdm(total=config.generations + 1, unit="gen", dynamic_ncols=True, leave=True)
-        self._config = config
-        self._runs = runs
-        self._started = time.perf_counter()
-        self._first_evaluations: int | None = None
-
-    def update(self, rows: list[dict[str, Any]], total: int) -> None:
-        evaluations = sum(row["evaluations"] + row["reevaluations"] for row in rows)
-        if self._first_evaluations is None:
-            self._first_evaluations = evaluations
-            self._started = time.perf_counter()
-        row = rows[0]
-        if row["event"] != "reevaluate":
-            self._bar.n = row["generation"] + 1
-        elapsed = max(time.perf_counter() - self._started, 1e-9)
-        rate = (evaluations - self._first_evaluations) / elapsed
-        coverage = sorted(r["coverage"] for r in rows)[len(rows) // 2]
-        self._bar.set_postfix_str(
-            f"{self._runs} runs, phase {row['phase'] + 1}/{self._config.num_phases} "
-            f"best max {max(r['max_fitness'] for r in rows):.1f} median cov {coverage:.1f}% {rate:.0f} evals/s",
-            refresh=False,
-        )
-        self._bar.refresh()
-
-    def close(self) -> None:
-        self._bar.close()
 
 
 def sweep_summary(results: list[RunResult], out_dir: Any) -> str:
