@@ -239,7 +239,7 @@ def test_processes_share_a_sweep_by_index(schedules, monkeypatch):
     [
         (["--num-processes", "2"], "give --num-processes and --process-id together"),
         (["--num-processes", "2", "--process-id", "2"], "the index must be from 0 to 1"),
-        (["--cluster"], "--cluster: no launcher found"),
+        (["--cluster"], "--cluster: no cluster launcher found"),
     ],
 )
 def test_cli_sweep_bad_process_flags(flags, message, tmp_path, capsys, monkeypatch):
