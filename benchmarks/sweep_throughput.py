@@ -13,7 +13,9 @@ Prints `name: value` lines, among them:
 
 - batched_over_sequential: sequential time over sweep time (target >= 1.2 on a 2-core CPU);
 - batched_one_device_over_sequential: the same with the sweep held to one device;
-- two_devices_over_one: sweep_one_device time over the sweep's time on two devices.
+- two_devices_over_one: sweep_one_device time over the sweep's time on two devices;
+- one_run_two_devices_over_one: one run as a sweep on one device over the same run on two
+  devices, which split its population.
 
 Usage: python benchmarks/sweep_throughput.py [--generations 40] [--devices 2]
 """
@@ -81,22 +83,34 @@ def main() -> None:
         run_sweep(task, schedules, seeds, cfg, devices=on)
         return time.perf_counter() - started
 
+    def one_run(on: list, evaluations: int | None = None) -> float:
+        started = time.perf_counter()
+        cfg = preset_config("walker2d", "quick", **{**_fields(config), **_budget(evaluations)})
+        run_sweep(task, schedules[:1], seeds[:1], cfg, devices=on)
+        return time.perf_counter() - started
+
     sequential(warm["evaluations"])
     sweep(devices, warm["evaluations"])
     sweep(devices[:1], warm["evaluations"])
+    one_run(devices, warm["evaluations"])
+    one_run(devices[:1], warm["evaluations"])
 
     times = {
         "sequential": sequential(),
         "sweep": sweep(devices),
         "sweep_one_device": sweep(devices[:1]),
     }
+    single = {"one_run_one_device": one_run(devices[:1]), "one_run_two_devices": one_run(devices)}
     total = runs * config.evaluations
     for name, seconds in times.items():
         print(f"{name}_s: {seconds:.2f}  ({total / seconds:.0f} training evals/s)")
     print(f"batched_over_sequential: {times['sequential'] / times['sweep']:.3f}")
     print(f"batched_one_device_over_sequential: {times['sequential'] / times['sweep_one_device']:.3f}")
+    for name, seconds in single.items():
+        print(f"{name}_s: {seconds:.2f}  ({config.evaluations / seconds:.0f} training evals/s)")
     if len(devices) >= 2:
         print(f"two_devices_over_one: {times['sweep_one_device'] / times['sweep']:.3f}")
+        print(f"one_run_two_devices_over_one: {single['one_run_one_device'] / single['one_run_two_devices']:.3f}")
     sys.stdout.flush()
 
 

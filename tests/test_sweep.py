@@ -130,6 +130,10 @@ for name, devices, per_step in (("one", jax.devices()[:1], -1), ("two", jax.devi
                                 ("two-vmapped", jax.devices(), None)):
     runs = run_sweep("walker2d", schedules, [0], config, devices=devices, runs_per_step=per_step)
     out[name] = [dict(fitnesses=np.asarray(r.repertoire.fitnesses).tolist(), rows=r.metrics) for r in runs]
+# one run on two devices: its population is split between them
+for name, devices in (("one-run", jax.devices()[:1]), ("one-run-two-devices", jax.devices())):
+    runs = run_sweep("walker2d", schedules[:1], [0], config, devices=devices)
+    out[name] = [dict(fitnesses=np.asarray(r.repertoire.fitnesses).tolist(), rows=r.metrics) for r in runs]
 out["devices"] = len(jax.devices())
 with open(sys.argv[1], "w") as file:
     json.dump(out, file)
@@ -145,8 +149,8 @@ def test_runs_sharded_over_two_devices_equal_one_device(tmp_path):
     assert done.returncode == 0, done.stderr
     out = json.loads(result.read_text())
     assert out["devices"] == 2
-    for name in ("two", "two-vmapped"):
-        for one, other in zip(out["one"], out[name], strict=True):
+    for reference, name in (("one", "two"), ("one", "two-vmapped"), ("one-run", "one-run-two-devices")):
+        for one, other in zip(out[reference], out[name], strict=True):
             a, b = np.asarray(one["fitnesses"]), np.asarray(other["fitnesses"])
             np.testing.assert_array_equal(a > -np.inf, b > -np.inf)
             np.testing.assert_allclose(a, b, rtol=1e-5)
@@ -247,3 +251,13 @@ def test_cli_sweep_bad_process_flags(flags, message, tmp_path, capsys, monkeypat
         monkeypatch.delenv(name, raising=False)
     assert main(["sweep", "walker2d", "human", *flags, "--out", str(tmp_path / "s")]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_devices_split_runs_first_then_populations():
+    from smol_dsl.runner.batched import mesh_shape
+
+    assert mesh_shape(devices=2, runs=15, batch_size=128) == (2, 1)  # 16 slots, one padded
+    assert mesh_shape(devices=2, runs=1, batch_size=128) == (1, 2)  # one run, its batch halved
+    assert mesh_shape(devices=8, runs=3, batch_size=128) == (2, 4)
+    assert mesh_shape(devices=8, runs=3, batch_size=6) == (2, 1)  # 6 does not split in 4: idle
+    assert mesh_shape(devices=1, runs=5, batch_size=7) == (1, 1)

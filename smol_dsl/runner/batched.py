@@ -3,10 +3,11 @@
 Every run of a sweep has the same task and settings but its own seed, schedule and
 archive, and all runs reach their phase boundaries together. So one jitted program
 advances every run by one generation, and one re-evaluates every archive, with each run's
-α a traced value. The runs axis is split across devices with `jax.shard_map` (runs are
-independent: no communication); on each device the local runs are either vmapped
-together (accelerators: one big batch) or mapped one after another inside the program
-(`runs_per_step`; CPUs, where rollouts slow down as batches grow past ~128).
+α a traced value. With `jax.shard_map` over a (runs, population) device mesh, runs are
+split across devices (independent: no communication), and devices left over split each
+offspring batch (its rollouts are gathered back). On each device the local runs are
+either vmapped together (accelerators: one big batch) or mapped one after another inside
+the program (`runs_per_step`; CPUs, where rollouts slow down as batches grow past ~128).
 
 Per run, the programs do exactly what `PhasedMapElites` does for a single run, with the
 same random keys, so a sweep's run follows the same algorithm and random streams as
@@ -15,6 +16,7 @@ same random keys, so a sweep's run follows the same algorithm and random streams
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import jax
@@ -28,6 +30,21 @@ from smol_dsl.runner.algorithm import empty_archive, insert_survivors, make_map_
 from smol_dsl.tasks import Task
 
 RUNS = "runs"
+POPULATION = "population"
+
+
+def mesh_shape(devices: int, runs: int, batch_size: int) -> tuple[int, int]:
+    """How to lay `devices` out as (runs axis, population axis).
+
+    Runs are split first: the runs axis gets the largest divisor of the device count that
+    is at most the number of runs. The devices left over split each run's population,
+    when the batch divides evenly; otherwise they stay idle.
+    """
+    along_runs = max(d for d in range(1, devices + 1) if devices % d == 0 and d <= max(runs, 1))
+    along_population = devices // along_runs
+    if batch_size % along_population:
+        along_population = 1
+    return along_runs, along_population
 
 
 def default_runs_per_step(devices: list[jax.Device]) -> int | None:
@@ -37,10 +54,13 @@ def default_runs_per_step(devices: list[jax.Device]) -> int | None:
 
 
 class BatchedMapElites:
-    """Jitted programs that advance R runs at once, the runs axis sharded over `devices`.
+    """Jitted programs that advance R runs at once, sharded over `devices`.
 
-    Every array argument and result has the runs axis first; R must be a multiple of the
-    number of devices (`padded_runs`).
+    The devices form a (runs, population) mesh (`mesh_shape`): runs are split across the
+    first axis; along the second, each device scores its share of every offspring batch
+    and the shares are gathered, so a sweep with fewer runs than devices still uses them
+    all. Every array argument and result has the runs axis first; R must be a multiple of
+    the runs axis (`padded_runs`).
     """
 
     def __init__(
@@ -52,12 +72,18 @@ class BatchedMapElites:
         line_sigma: float,
         devices: list[jax.Device] | None = None,
         runs_per_step: int | None = -1,
+        num_runs: int | None = None,
     ) -> None:
         self.task = task
         self.batch_size = batch_size
-        self.devices = list(devices) if devices is not None else jax.local_devices()
-        self.runs_per_step = default_runs_per_step(self.devices) if runs_per_step == -1 else runs_per_step
-        self.mesh = Mesh(np.asarray(self.devices), (RUNS,))
+        devices = list(devices) if devices is not None else jax.local_devices()
+        self.runs_per_step = default_runs_per_step(devices) if runs_per_step == -1 else runs_per_step
+        along_runs, self.population_devices = mesh_shape(
+            len(devices), len(devices) if num_runs is None else num_runs, batch_size
+        )
+        self.devices = devices[: along_runs * self.population_devices]
+        grid = np.asarray(self.devices).reshape(along_runs, self.population_devices)
+        self.mesh = Mesh(grid, (RUNS, POPULATION))
         self.sharding = NamedSharding(self.mesh, PartitionSpec(RUNS))
         self.map_elites = make_map_elites(batch_size, task.qd_offset, iso_sigma, line_sigma)
         self._step = self._over_runs(self._run_step, donate=(0,))
@@ -66,9 +92,9 @@ class BatchedMapElites:
         self._split = jax.jit(jax.vmap(jax.random.split))
 
     def padded_runs(self, runs: int) -> int:
-        """The number of runs rounded up to a multiple of the number of devices."""
-        devices = len(self.devices)
-        return -(-runs // devices) * devices
+        """The number of runs rounded up to a multiple of the runs axis."""
+        along_runs = self.mesh.shape[RUNS]
+        return -(-runs // along_runs) * along_runs
 
     def put(self, tree: Any) -> Any:
         """Place arrays with a leading runs axis on the devices, split along that axis."""
@@ -88,6 +114,19 @@ class BatchedMapElites:
         sharded = jax.shard_map(local, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
         return jax.jit(sharded, donate_argnums=donate)
 
+    def _score(self, genotypes: Any, alpha: jax.Array, start: Any) -> tuple[jax.Array, jax.Array]:
+        """Score one run's batch; along the population axis each device rolls out its
+        share, and the shares are gathered in order."""
+        shares = self.population_devices
+        if shares == 1:
+            return self.task.score(genotypes, alpha, start)
+        size = self.batch_size // shares
+        first = jax.lax.axis_index(POPULATION) * size
+        mine = jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), genotypes)
+        fitnesses, descriptors = self.task.score(mine, alpha, start)
+        gather = partial(jax.lax.all_gather, axis_name=POPULATION, tiled=True)
+        return gather(fitnesses), gather(descriptors)
+
     def _run_step(
         self, repertoire: MapElitesRepertoire, alpha: jax.Array, start: Any, key: jax.Array
     ) -> tuple[MapElitesRepertoire, dict[str, jax.Array], jax.Array, jax.Array]:
@@ -100,7 +139,7 @@ class BatchedMapElites:
             lambda: self.task.init_policies(ask_key, self.batch_size),
             lambda: self.map_elites.ask(repertoire, None, ask_key)[0],
         )
-        fitnesses, descriptors = self.task.score(genotypes, alpha, start)
+        fitnesses, descriptors = self._score(genotypes, alpha, start)
         repertoire, _, metrics, dropped = tell_finite(
             self.map_elites, genotypes, fitnesses, descriptors, repertoire, None
         )
@@ -121,7 +160,7 @@ class BatchedMapElites:
         key, score_key, death_key = jax.random.split(key, 3)
         del score_key
         genotypes = jax.tree.map(lambda x: x[index], source)
-        fitnesses, descriptors = self.task.score(genotypes, alpha, start)
+        fitnesses, descriptors = self._score(genotypes, alpha, start)
         survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
         fresh, dropped = insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
         return fresh, key, dropped
@@ -194,4 +233,4 @@ def stack_runs(trees: list[Any]) -> Any:
     return jax.tree.map(lambda *x: jnp.stack(x), *trees)
 
 
-__all__ = ["BatchedMapElites", "default_runs_per_step", "stack_runs"]
+__all__ = ["BatchedMapElites", "default_runs_per_step", "mesh_shape", "stack_runs"]

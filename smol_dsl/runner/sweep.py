@@ -92,6 +92,7 @@ def batched_map_elites(
     line_sigma: float,
     devices: tuple[jax.Device, ...],
     runs_per_step: int | None,
+    num_runs: int,
 ) -> BatchedMapElites:
     """A shared BatchedMapElites per setting, so sweeps in one process reuse compilations."""
     return BatchedMapElites(
@@ -101,6 +102,7 @@ def batched_map_elites(
         line_sigma=line_sigma,
         devices=list(devices),
         runs_per_step=runs_per_step,
+        num_runs=num_runs,
     )
 
 
@@ -148,7 +150,9 @@ def run_sweep(
         _prepare_sweep_directory(directory, every, runs, config, resume, shared=parts > 1)
 
     devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
-    engine = batched_map_elites(task, config.batch_size, config.iso_sigma, config.line_sigma, devices, runs_per_step)
+    engine = batched_map_elites(
+        task, config.batch_size, config.iso_sigma, config.line_sigma, devices, runs_per_step, len(runs)
+    )
     padded = runs + [runs[-1]] * (engine.padded_runs(len(runs)) - len(runs))  # copies; results dropped
     main_keys, init_keys, all_centroids = [], [], {}
     for run in padded:
