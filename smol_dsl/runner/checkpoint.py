@@ -115,15 +115,22 @@ def save_checkpoint(directory: Path, state: RunState) -> None:
     atomic_write(directory / CHECKPOINT, lambda file: np.savez(file, **arrays))
 
 
-def load_checkpoint(directory: Path, genotype_template: Any) -> RunState | None:
-    """The state saved in directory, shaped like genotype_template, or None if there is none."""
-    path = directory / CHECKPOINT
+def _load(path: Path, genotype_template: Any, key_field: str) -> tuple[MapElitesRepertoire, jax.Array, Any] | None:
+    """An archive, its key(s) and the progress JSON saved at path, or None if there is none."""
     if not path.is_file():
         return None
     with np.load(path, allow_pickle=False) as data:
         repertoire = _repertoire_from(data, genotype_template)
-        key = jax.random.wrap_key_data(jax.numpy.asarray(data["key"]))
-        progress = json.loads(str(data["progress"]))
+        key = jax.random.wrap_key_data(jax.numpy.asarray(data[key_field]))
+        return repertoire, key, json.loads(str(data["progress"]))
+
+
+def load_checkpoint(directory: Path, genotype_template: Any) -> RunState | None:
+    """The state saved in directory, shaped like genotype_template, or None if there is none."""
+    loaded = _load(directory / CHECKPOINT, genotype_template, "key")
+    if loaded is None:
+        return None
+    repertoire, key, progress = loaded
     return _state(progress, repertoire, key)
 
 
@@ -199,10 +206,8 @@ def load_sweep_checkpoint(
     path: Path, genotype_template: Any
 ) -> tuple[MapElitesRepertoire, jax.Array, list[RunState]] | None:
     """The stacked archives, keys and per-run states saved by save_sweep_checkpoint, or None."""
-    if not path.is_file():
+    loaded = _load(path, genotype_template, "keys")
+    if loaded is None:
         return None
-    with np.load(path, allow_pickle=False) as data:
-        repertoires = _repertoire_from(data, genotype_template)
-        keys = jax.random.wrap_key_data(jax.numpy.asarray(data["keys"]))
-        progress = json.loads(str(data["progress"]))
+    repertoires, keys, progress = loaded
     return repertoires, keys, [_state(p, None, None) for p in progress]
