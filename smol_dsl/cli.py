@@ -426,7 +426,8 @@ def _report(args: argparse.Namespace) -> int:
     for note in table.notes()[:3]:
         print(f"note: {note}", file=sys.stderr)
     if len(table.notes()) > 3:
-        print(f"note: and {len(table.notes()) - 3} more pairs like these", file=sys.stderr)
+        more = len(table.notes()) - 3
+        print(f"note: and {more} more pair{'s' if more > 1 else ''} like these", file=sys.stderr)
     print(f"wrote {', '.join(str(f) for f in report.files)}")
     return EXIT_OK
 

@@ -209,15 +209,17 @@ class PValueTable:
         return notes
 
     @property
-    def best(self) -> str:
-        return max(self.rows, key=lambda name: self.medians[name])
+    def best(self) -> set[str]:
+        """The schedules with the highest median (several when they tie)."""
+        top = max(self.medians[name] for name in self.rows)
+        return {name for name in self.rows if self.medians[name] == top}
 
     def markdown(self) -> str:
         header = ["schedule", "runs", "median score", *(f"p: {c} better" for c in self.columns)]
         lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
         for row in self.rows:
             median = _number(self.medians[row])
-            cells = [row, str(self.runs[row]), f"**{median}**" if row == self.best else median]
+            cells = [row, str(self.runs[row]), f"**{median}**" if row in self.best else median]
             for column in self.columns:
                 p = self.pvalues[row][column]
                 cells.append("-" if p is None else (f"**{p:.3e}**" if p < SIGNIFICANCE else f"{p:.3e}"))
@@ -235,7 +237,7 @@ class PValueTable:
         ]
         for row in self.rows:
             median = _number(self.medians[row])
-            cells = [_latex_escape(row), f"\\textbf{{{median}}}" if row == self.best else median]
+            cells = [_latex_escape(row), f"\\textbf{{{median}}}" if row in self.best else median]
             for column in self.columns:
                 p = self.pvalues[row][column]
                 cells.append("-" if p is None else (f"\\textbf{{{p:.3e}}}" if p < SIGNIFICANCE else f"{p:.3e}"))
@@ -425,7 +427,8 @@ def write_report(paths: Sequence[str | Path], out_dir: str | Path, metric: str |
             figure.savefig(out / f"{stem}{suffix}", dpi=130)
             files.append(out / f"{stem}{suffix}")
     if _descriptor_size(groups) == 2:
-        figure = archives_figure(groups, table.metric, f"{table.task}: final archives (median run by {label})")
+        by = table.metric.replace("_", " ")
+        figure = archives_figure(groups, table.metric, f"{table.task}: final archives (median run by {by})")
         for suffix in (".png", ".pdf"):
             figure.savefig(out / f"archives{suffix}", dpi=130)
             files.append(out / f"archives{suffix}")

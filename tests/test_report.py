@@ -255,3 +255,13 @@ def test_a_directory_given_twice_counts_once(synthetic):
 def test_unknown_metric_is_a_usage_error(synthetic, capsys):
     assert main(["report", str(synthetic), "--metric", "speed"]) == 2
     assert "unknown metric 'speed'" in capsys.readouterr().err
+
+
+def test_tied_best_medians_are_all_bold(tmp_path, library):
+    for seed in range(2):
+        write_run(tmp_path / f"s{seed}", library, "smol", seed, {"coverage": 6.25})
+        write_run(tmp_path / f"v{seed}", library, "vanilla", seed, {"coverage": 6.25})
+    table = pvalue_table(load_runs([tmp_path]), "coverage")
+    assert table.best == {"SMOL", "Vanilla MAP-Elites"}
+    assert table.markdown().count("**6.2**") == 2
+    assert table.pvalues["Vanilla MAP-Elites"]["SMOL"] == pytest.approx(1.0)  # identical scores: no evidence
