@@ -23,6 +23,7 @@ Usage: python benchmarks/sweep_throughput.py [--generations 40] [--devices 2]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -43,7 +44,7 @@ def main() -> None:
     import jax
 
     import smol_dsl
-    from smol_dsl.runner import preset_config, run_experiment, run_sweep
+    from smol_dsl.runner import RunConfig, preset_config, run_experiment, run_sweep
     from smol_dsl.tasks import make_task
 
     devices = jax.local_devices()
@@ -67,40 +68,32 @@ def main() -> None:
         flush=True,
     )
     task = make_task("walker2d", episode_length=config.episode_length, hidden_layer_sizes=config.hidden_layer_sizes)
-    warm = dict(evaluations=config.batch_size * (config.num_phases + 2))
+    warm = dataclasses.replace(config, evaluations=config.batch_size * (config.num_phases + 2))
 
-    def sequential(evaluations: int | None = None) -> float:
+    def sequential(cfg: RunConfig) -> float:
         started = time.perf_counter()
         for schedule in schedules:
             for seed in seeds:
-                cfg = preset_config("walker2d", "quick", **{**_fields(config), "seed": seed, **_budget(evaluations)})
-                run_experiment(task, schedule, cfg)
+                run_experiment(task, schedule, dataclasses.replace(cfg, seed=seed))
         return time.perf_counter() - started
 
-    def sweep(on: list, evaluations: int | None = None) -> float:
+    def sweep(on: list, cfg: RunConfig, runs: slice = slice(None)) -> float:
         started = time.perf_counter()
-        cfg = preset_config("walker2d", "quick", **{**_fields(config), **_budget(evaluations)})
-        run_sweep(task, schedules, seeds, cfg, devices=on)
+        run_sweep(task, schedules[runs], seeds[runs], cfg, devices=on)
         return time.perf_counter() - started
 
-    def one_run(on: list, evaluations: int | None = None) -> float:
-        started = time.perf_counter()
-        cfg = preset_config("walker2d", "quick", **{**_fields(config), **_budget(evaluations)})
-        run_sweep(task, schedules[:1], seeds[:1], cfg, devices=on)
-        return time.perf_counter() - started
-
-    sequential(warm["evaluations"])
-    sweep(devices, warm["evaluations"])
-    sweep(devices[:1], warm["evaluations"])
-    one_run(devices, warm["evaluations"])
-    one_run(devices[:1], warm["evaluations"])
+    one = slice(0, 1)  # one schedule, one seed: a single run
+    sequential(warm)
+    for on in (devices, devices[:1]):
+        sweep(on, warm)
+        sweep(on, warm, one)
 
     times = {
-        "sequential": sequential(),
-        "sweep": sweep(devices),
-        "sweep_one_device": sweep(devices[:1]),
+        "sequential": sequential(config),
+        "sweep": sweep(devices, config),
+        "sweep_one_device": sweep(devices[:1], config),
     }
-    single = {"one_run_one_device": one_run(devices[:1]), "one_run_two_devices": one_run(devices)}
+    single = {"one_run_one_device": sweep(devices[:1], config, one), "one_run_two_devices": sweep(devices, config, one)}
     total = runs * config.evaluations
     for name, seconds in times.items():
         print(f"{name}_s: {seconds:.2f}  ({total / seconds:.0f} training evals/s)")
@@ -112,20 +105,6 @@ def main() -> None:
         print(f"two_devices_over_one: {times['sweep_one_device'] / times['sweep']:.3f}")
         print(f"one_run_two_devices_over_one: {single['one_run_one_device'] / single['one_run_two_devices']:.3f}")
     sys.stdout.flush()
-
-
-def _fields(config: object) -> dict:
-    import dataclasses
-
-    fields = dataclasses.asdict(config)
-    for name in ("task", "preset"):
-        fields.pop(name)
-    fields["hidden_layer_sizes"] = tuple(fields["hidden_layer_sizes"])
-    return fields
-
-
-def _budget(evaluations: int | None) -> dict:
-    return {} if evaluations is None else {"evaluations": evaluations}
 
 
 if __name__ == "__main__":

@@ -272,14 +272,14 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     from smol_dsl.runner import check_config, run_experiment
     from smol_dsl.runner.progress import summary_line
+    from smol_dsl.runner.sweep import run_name
 
     config = _config(args, seed=args.seed)
     try:
         check_config(config, schedule)
     except ValueError as error:
         raise UsageError(str(error)) from None
-    stem = Path(schedule.path).stem if schedule.path else "schedule"
-    out = Path(args.out) if args.out else Path("runs") / f"{args.task}-{stem}-seed{config.seed}"
+    out = Path(args.out) if args.out else Path("runs") / run_name(args.task, schedule, config.seed)
     print(
         f"smol-dsl run: {args.task} under {schedule.name} ({args.schedule}), preset {config.preset}: "
         f"{config.evaluations} evaluations in batches of {config.batch_size}, {config.num_phases} phases, "

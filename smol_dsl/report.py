@@ -11,6 +11,7 @@ Markdown and LaTeX with the figures.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import warnings
@@ -20,6 +21,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from smol_dsl.runner.config import RunConfig
+from smol_dsl.runner.run import alpha_one_evaluations
 
 METRICS = ("max_fitness", "coverage", "qd_score")
 METRIC_LABELS = {"max_fitness": "max fitness", "coverage": "coverage (%)", "qd_score": "QD score"}
@@ -43,17 +47,34 @@ class RunRecord:
     """A finished run directory: its settings, schedule and metrics log."""
 
     directory: Path
-    task: str
-    seed: int
-    settings: dict[str, Any]  # the run's configuration without its seed
+    config: RunConfig
     schedule: str  # the schedule's name
     schedule_source: str
     tail_start: float
     rows: list[dict[str, Any]]
 
     @property
+    def task(self) -> str:
+        return self.config.task
+
+    @property
+    def seed(self) -> int:
+        return self.config.seed
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The run's configuration without its seed: what runs compared must share."""
+        settings = dataclasses.asdict(self.config)
+        del settings["seed"]
+        return settings
+
+    @property
     def final(self) -> dict[str, Any]:
         return self.rows[-1]
+
+    @property
+    def finished(self) -> bool:
+        return self.final["generation"] >= self.config.generations
 
     def curve(self, metric: str) -> tuple[np.ndarray, np.ndarray]:
         """Training evaluations and the metric, one point per logged row."""
@@ -62,9 +83,9 @@ class RunRecord:
 
     def alpha_one_evaluations(self) -> float | None:
         """Training evaluations when alpha becomes 1 for good (the first tail phase starts)."""
-        phases = int(self.settings["num_phases"])
+        phases = self.config.num_phases
         first_tail = next(k for k in range(phases + 1) if k == phases or k / phases >= self.tail_start)
-        return next((float(r["evaluations"]) for r in self.rows if r["phase"] >= first_tail), None)
+        return alpha_one_evaluations(self.rows, first_tail)
 
 
 def is_run_directory(path: Path) -> bool:
@@ -89,16 +110,12 @@ def find_run_directories(paths: Iterable[str | Path]) -> list[Path]:
 
 def read_run(directory: Path) -> RunRecord:
     """Read a run directory's config, schedule, certificate and metrics.csv."""
-    config = json.loads((directory / "config.json").read_text())
     certificate = json.loads((directory / "certificate.json").read_text())
     with open(directory / "metrics.csv", newline="") as file:
         rows = [_typed_row(row) for row in csv.DictReader(file)]
-    seed = int(config.pop("seed"))
     return RunRecord(
         directory=directory,
-        task=config["task"],
-        seed=seed,
-        settings=config,
+        config=RunConfig.from_json((directory / "config.json").read_text()),
         schedule=certificate["name"],
         schedule_source=(directory / "schedule.sched").read_text(),
         tail_start=float(certificate["tail_start"]),
@@ -138,11 +155,11 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
             f"the runs are of different tasks ({', '.join(tasks)}), which cannot share a table ({examples}); "
             "report each task's directories separately"
         )
-    unfinished = [run for run in runs if run.final["generation"] < _generations(run.settings)]
+    unfinished = [run for run in runs if not run.finished]
     if unfinished:
         raise ReportError(
             f"{len(unfinished)} run(s) have not finished, e.g. {unfinished[0].directory} (generation "
-            f"{unfinished[0].final['generation']} of {_generations(unfinished[0].settings)}); finish them with "
+            f"{unfinished[0].final['generation']} of {unfinished[0].config.generations}); finish them with "
             "`smol-dsl sweep ... --resume` or `smol-dsl run ... --resume`, or leave them out"
         )
     reference = runs[0]
@@ -170,10 +187,6 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
         group.append(run)
     ordered = sorted(groups, key=lambda name: (ORDER.index(name) if name in ORDER else len(ORDER), name))
     return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
-
-
-def _generations(settings: dict[str, Any]) -> int:
-    return int(settings["evaluations"]) // int(settings["batch_size"]) - 1
 
 
 def final_scores(groups: dict[str, list[RunRecord]], metric: str) -> dict[str, np.ndarray]:

@@ -126,13 +126,15 @@ config = preset_config("walker2d", "quick", evaluations=208, batch_size=16, num_
                        episode_length=20)
 schedules = [smol_dsl.load("human"), smol_dsl.load("extinction-50"), smol_dsl.load("smol")]  # 3 runs: padded
 out = {}
-for name, devices, per_step in (("one", jax.devices()[:1], -1), ("two", jax.devices(), -1),
-                                ("two-vmapped", jax.devices(), None)):
-    runs = run_sweep("walker2d", schedules, [0], config, devices=devices, runs_per_step=per_step)
-    out[name] = [dict(fitnesses=np.asarray(r.repertoire.fitnesses).tolist(), rows=r.metrics) for r in runs]
-# one run on two devices: its population is split between them
-for name, devices in (("one-run", jax.devices()[:1]), ("one-run-two-devices", jax.devices())):
-    runs = run_sweep("walker2d", schedules[:1], [0], config, devices=devices)
+one, two = jax.devices()[:1], jax.devices()
+for name, runs_of, devices, per_step in (
+    ("one", schedules, one, -1),
+    ("two", schedules, two, -1),
+    ("two-vmapped", schedules, two, None),
+    ("one-run", schedules[:1], one, -1),
+    ("one-run-two-devices", schedules[:1], two, -1),  # its population is split between them
+):
+    runs = run_sweep("walker2d", runs_of, [0], config, devices=devices, runs_per_step=per_step)
     out[name] = [dict(fitnesses=np.asarray(r.repertoire.fitnesses).tolist(), rows=r.metrics) for r in runs]
 out["devices"] = len(jax.devices())
 with open(sys.argv[1], "w") as file:

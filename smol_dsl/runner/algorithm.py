@@ -14,7 +14,7 @@ of phases compiles the same few programs:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import lru_cache, partial
 from typing import Any
@@ -101,6 +101,22 @@ def empty_archive(example_genotypes: Any, centroids: jax.Array) -> MapElitesRepe
     return MapElitesRepertoire.init_default(genotype=one, centroids=centroids)
 
 
+def reevaluation_chunks(filled: list[np.ndarray], batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Fixed-size chunks over each run's filled cells, up to the fullest run: per chunk,
+    cell indices and which of them are real, both (runs, batch_size). A short chunk is
+    padded by repeating its cells (padding is not kept); a run with no cells left gets an
+    all-invalid row."""
+    for start in range(0, max((len(cells) for cells in filled), default=0), batch_size):
+        index = np.zeros((len(filled), batch_size), dtype=np.int32)
+        valid = np.zeros((len(filled), batch_size), dtype=bool)
+        for run, cells in enumerate(filled):
+            chunk = cells[start : start + batch_size]
+            if len(chunk):
+                index[run] = np.resize(chunk, batch_size)
+                valid[run, : len(chunk)] = True
+        yield index, valid
+
+
 @dataclass(frozen=True)
 class Evaluation:
     """What one scored batch contributed: counts for the metrics log."""
@@ -183,11 +199,8 @@ class PhasedMapElites:
         filled = np.flatnonzero(np.asarray(repertoire.fitnesses).reshape(-1) > -np.inf)
         fresh = self.empty_archive(repertoire.genotypes, repertoire.centroids)
         non_finite = 0
-        for start in range(0, len(filled), self.batch_size):
-            chunk = filled[start : start + self.batch_size]
-            valid = np.zeros(self.batch_size, dtype=bool)
-            valid[: len(chunk)] = True
-            index = np.resize(chunk, self.batch_size)  # pad by repeating; padding is not kept
+        for indices, valids in reevaluation_chunks([filled], self.batch_size):
+            index, valid = indices[0], valids[0]
             genotypes = self._gather(repertoire.genotypes, jnp.asarray(index))
             key, score_key, death_key = jax.random.split(key, 3)
             fitnesses, descriptors, _ = self.score(genotypes, alpha, score_key)

@@ -26,7 +26,13 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 from qdax.utils.metrics import default_qd_metrics
 
-from smol_dsl.runner.algorithm import empty_archive, insert_survivors, make_map_elites, tell_finite
+from smol_dsl.runner.algorithm import (
+    empty_archive,
+    insert_survivors,
+    make_map_elites,
+    reevaluation_chunks,
+    tell_finite,
+)
 from smol_dsl.tasks import Task
 
 RUNS = "runs"
@@ -170,7 +176,7 @@ class BatchedMapElites:
         """One empty archive per run, on its centroids (R, C, D)."""
         template = self.task.init_policies(jax.random.key(0), 1)
         archives = [empty_archive(template, c) for c in centroids]
-        return self.put(jax.tree.map(lambda *x: jnp.stack(x), *archives))
+        return self.put(stack_runs(archives))
 
     def split(self, keys: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Split every run's key in two, as `state.key, key = split(state.key)` does."""
@@ -200,16 +206,8 @@ class BatchedMapElites:
         filled_mask = np.asarray(repertoires.fitnesses) > -np.inf
         filled = [np.flatnonzero(row) for row in filled_mask]
         fresh = self.empty_archives(repertoires.centroids)
-        batch = self.batch_size
         non_finite = np.zeros(len(filled), dtype=np.int64)
-        for start in range(0, max(len(f) for f in filled), batch):
-            index = np.zeros((len(filled), batch), dtype=np.int32)
-            valid = np.zeros((len(filled), batch), dtype=bool)
-            for run, cells in enumerate(filled):
-                chunk = cells[start : start + batch]
-                if len(chunk):
-                    index[run] = np.resize(chunk, batch)  # pad by repeating; padding is not kept
-                    valid[run, : len(chunk)] = True
+        for index, valid in reevaluation_chunks(filled, self.batch_size):
             fresh, keys, dropped = self._reevaluate_chunk(
                 fresh,
                 repertoires.genotypes,

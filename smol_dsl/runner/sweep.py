@@ -272,7 +272,7 @@ def _run_metrics(metrics: dict[str, np.ndarray], run: int) -> dict[str, float]:
 
 
 def _sweep_description(runs: list[SweepRun], config: RunConfig) -> dict[str, Any]:
-    shared = json.loads(dataclasses.replace(config, seed=0).to_json())
+    shared = json.loads(config.to_json())
     del shared["seed"]
     return {
         "task": config.task,
