@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 if TYPE_CHECKING:
     from smol_dsl.runner import RunConfig
+    from smol_dsl.runner.footprint import Footprint
 
 T = TypeVar("T")
 
@@ -180,6 +181,12 @@ def _add_run_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--batch-size", type=_positive_int, default=None, metavar="B", help="offspring per generation")
     command.add_argument("--centroids", type=_positive_int, default=None, metavar="C", help="CVT cells in the archive")
     command.add_argument("--episode-length", type=_positive_int, default=None, metavar="L", help="steps per episode")
+    command.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print what the run would need (memory, checkpoint size, evaluations/s for a time budget), "
+        "by arithmetic, and exit without running",
+    )
 
 
 def _load_all(names: Sequence[str]) -> tuple[list, list[str]]:
@@ -271,6 +278,7 @@ def _run(args: argparse.Namespace) -> int:
         print(error, file=sys.stderr)
         return EXIT_USAGE
     from smol_dsl.runner import check_config, run_experiment
+    from smol_dsl.runner.footprint import fit_sweep
     from smol_dsl.runner.progress import summary_line
     from smol_dsl.runner.sweep import run_name
 
@@ -286,6 +294,12 @@ def _run(args: argparse.Namespace) -> int:
         f"{config.num_centroids} cells, {config.episode_length}-step episodes, seed {config.seed} -> {out}",
         file=sys.stderr,
     )
+    import jax
+
+    fit = lambda: fit_sweep(config, 1, [config.seed], jax.devices()[:1])  # noqa: E731
+    _announce_footprint("run", config, fit, out, args.dry_run)
+    if args.dry_run:
+        return EXIT_OK
     if config.preset == "quick":
         print(
             "smol-dsl run: the quick preset is sized for about 5 minutes on 2 CPU cores; "
@@ -330,6 +344,7 @@ def _sweep(args: argparse.Namespace) -> int:
             print(error, file=sys.stderr)
         return EXIT_USAGE
     from smol_dsl.runner import check_config, run_sweep
+    from smol_dsl.runner.footprint import fit_sweep
     from smol_dsl.runner.progress import sweep_summary
 
     config = _config(args, seed=None)
@@ -358,6 +373,11 @@ def _sweep(args: argparse.Namespace) -> int:
         f"{config.num_centroids} cells, {config.episode_length}-step episodes -> {out}",
         file=sys.stderr,
     )
+    runs_per_step = -1 if args.runs_per_step is None else args.runs_per_step
+    fit = lambda: fit_sweep(config, len(schedules), seeds, devices, runs_per_step, part)  # noqa: E731
+    footprint = _announce_footprint("sweep", config, fit, out, args.dry_run)
+    if args.dry_run:
+        return EXIT_OK
     results = _with_progress(
         args,
         config,
@@ -370,12 +390,33 @@ def _sweep(args: argparse.Namespace) -> int:
             resume=args.resume,
             progress=progress,
             devices=devices,
-            runs_per_step=-1 if args.runs_per_step is None else args.runs_per_step,
+            runs_per_step=footprint.runs_per_step if runs_per_step == -1 else runs_per_step,
             part=part,
         ),
     )
     print(sweep_summary(results, out))
     return EXIT_OK
+
+
+LARGE_BYTES = 1e9  # a run or sweep this big on a device gets its footprint printed, whatever the preset
+
+
+def _announce_footprint(
+    command: str, config: RunConfig, fit: Callable[[], Footprint], out: Path, dry_run: bool
+) -> Footprint:
+    """Check that the run(s) fit the devices' memory, and print what they will need for the
+    paper preset or anything large; before anything compiles."""
+    from smol_dsl.runner import RunError
+
+    try:
+        footprint = fit()
+    except RunError as error:
+        raise UsageError(str(error)) from None
+    if dry_run or config.preset == "paper" or footprint.device_bytes > LARGE_BYTES:
+        print(f"smol-dsl {command}: what this will need, by arithmetic before compiling:", file=sys.stderr)
+        for line in footprint.describe(out).splitlines():
+            print(f"  {line}", file=sys.stderr)
+    return footprint
 
 
 CLUSTER_VARIABLES = (("SLURM_NTASKS", "SLURM_PROCID"), ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"))

@@ -272,6 +272,8 @@ def test_kill_9_then_resume_equals_uninterrupted_run(tmp_path):
     out, err = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, err
     assert "done: walker2d under SMOL-Human" in out
+    assert out.splitlines()[0].startswith("done:"), out  # no MJX Warp lines before it
+    assert "not actively being maintained" not in err and not (tmp_path / "MUJOCO_LOG.TXT").exists()
     assert (tmp_path / "killed" / "metrics.csv").read_text() == (tmp_path / "whole" / "metrics.csv").read_text()
     ours, theirs = np.load(tmp_path / "killed" / "archive.npz"), np.load(tmp_path / "whole" / "archive.npz")
     for name in theirs.files:

@@ -86,3 +86,28 @@ def test_policies_are_tanh_mlps_with_the_papers_sizes(walker):
 def test_unknown_task():
     with pytest.raises(ValueError, match="walker2d, halfcheetah, ant_omni"):
         make_task("hopper")
+
+
+QUIET_PROBE = """
+from smol_dsl.tasks import make_task
+for name in ("walker2d", "halfcheetah", "ant_omni"):
+    make_task(name, episode_length=5, hidden_layer_sizes=(4,))
+print("built")
+"""
+
+
+def test_no_warp_brax_or_mujoco_noise(tmp_path):
+    """MJX's Warp import lines, Brax's maintenance warning and MuJoCo's MUJOCO_LOG.TXT stay out."""
+    import os
+    import subprocess
+    import sys
+
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONWARNINGS"}
+    done = subprocess.run(
+        [sys.executable, "-W", "default", "-c", QUIET_PROBE], cwd=tmp_path, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "built\n"
+    assert "warp" not in done.stderr.lower() and "not actively being maintained" not in done.stderr
+    assert "settotalmass" not in done.stderr
+    assert list(tmp_path.iterdir()) == []

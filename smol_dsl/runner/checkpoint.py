@@ -2,13 +2,17 @@
 
 A checkpoint is written to a temporary file in the run directory, flushed to disk and
 renamed over the previous one, so a run killed at any moment leaves either the old or the
-new checkpoint, never a torn one.
+new checkpoint, never a torn one. Runs hand their checkpoints to a `CheckpointWriter`,
+which writes them in the background: at paper scale a sweep's checkpoint holds tens of GB
+of archives, and training goes on while it reaches the disk.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -63,16 +67,28 @@ class RunState:
     finished: bool = False
 
 
+def host_copy(leaf: Any) -> np.ndarray:
+    """A device array's values in host memory that nothing else writes to.
+
+    On a CPU, `np.asarray` of a JAX array can be a view of the device buffer, which the next
+    generation reuses (its archive is donated); a checkpoint written in the background needs
+    its own copy. From an accelerator, `np.asarray` already copies.
+    """
+    array = np.asarray(leaf)
+    on_cpu = isinstance(leaf, jax.Array) and all(d.platform == "cpu" for d in leaf.sharding.device_set)
+    return array.copy() if on_cpu else array
+
+
 def _repertoire_arrays(repertoire: MapElitesRepertoire) -> dict[str, np.ndarray]:
     """An archive's arrays by name: `genotypes/<param path>`, fitnesses, descriptors, centroids."""
     genotypes = repertoire.genotypes
     arrays = {
-        f"genotypes/{name}": np.asarray(leaf)
+        f"genotypes/{name}": host_copy(leaf)
         for name, leaf in zip(_leaf_names(genotypes), jax.tree.leaves(genotypes), strict=True)
     }
-    arrays["fitnesses"] = np.asarray(repertoire.fitnesses)
-    arrays["descriptors"] = np.asarray(repertoire.descriptors)
-    arrays["centroids"] = np.asarray(repertoire.centroids)
+    arrays["fitnesses"] = host_copy(repertoire.fitnesses)
+    arrays["descriptors"] = host_copy(repertoire.descriptors)
+    arrays["centroids"] = host_copy(repertoire.centroids)
     return arrays
 
 
@@ -105,14 +121,101 @@ def _state(progress: dict[str, Any], repertoire: MapElitesRepertoire | None, key
     return RunState(repertoire=repertoire, emitter_state=None, key=key, **progress)
 
 
-def save_checkpoint(directory: Path, state: RunState) -> None:
-    """Write the run's state atomically to directory/checkpoint.npz."""
+def write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write arrays atomically as an uncompressed `.npz`."""
+    atomic_write(path, lambda file: np.savez(file, **arrays))
+
+
+def checkpoint_arrays(state: RunState) -> dict[str, np.ndarray]:
+    """A run's checkpoint: its archive, key and progress, copied to host memory."""
     if state.emitter_state is not None:
         raise NotImplementedError("only stateless emitters (iso+line) are checkpointed")
     arrays = _repertoire_arrays(state.repertoire)
-    arrays["key"] = np.asarray(jax.random.key_data(state.key))
+    arrays["key"] = host_copy(jax.random.key_data(state.key))
     arrays["progress"] = np.asarray(json.dumps(_progress(state)))
-    atomic_write(directory / CHECKPOINT, lambda file: np.savez(file, **arrays))
+    return arrays
+
+
+def save_checkpoint(directory: Path, state: RunState) -> None:
+    """Write the run's state atomically to directory/checkpoint.npz (now, not in the background)."""
+    write_npz(directory / CHECKPOINT, checkpoint_arrays(state))
+
+
+class CheckpointWriter:
+    """Writes checkpoints atomically in a background thread, one at a time.
+
+    Training goes on while a checkpoint reaches the disk; it waits only for the copy of the
+    archives to host memory. A checkpoint `offer`ed while the previous one is still being
+    written is skipped, so a slow disk makes checkpoints rarer instead of training slower
+    (a resumed run restarts from an earlier boundary, with the same results). `flush` waits
+    for the write in flight and raises its error, if any; runs flush before they return,
+    also when interrupted, so their last checkpoint is whole on disk.
+
+    >>> writer = CheckpointWriter()
+    >>> writer.offer(directory / CHECKPOINT, lambda: checkpoint_arrays(state))  # doctest: +SKIP
+    True
+    >>> writer.flush()
+    """
+
+    def __init__(self, background: bool = True) -> None:
+        self.background = background
+        self.written = 0
+        self.skipped = 0
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+
+    def writing(self) -> bool:
+        """Whether a checkpoint is being written now."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def offer(self, path: Path, arrays: Callable[[], dict[str, np.ndarray]]) -> bool:
+        """Write the checkpoint `arrays()` copies to host memory, unless a write is still in
+        flight: then skip it and return False."""
+        if self.writing():
+            self.skipped += 1
+            return False
+        self.flush()
+        host_arrays = arrays()
+        if not self.background:
+            self._write(path, host_arrays)
+        else:
+            self._thread = threading.Thread(
+                target=self._write, args=(path, host_arrays), name=f"smol-dsl {path.name}", daemon=True
+            )
+            self._thread.start()
+        return True
+
+    def write_now(self, path: Path, arrays: dict[str, np.ndarray]) -> None:
+        """Wait for the write in flight, then write this checkpoint before returning."""
+        self.flush()
+        self._write(path, arrays)
+        self.flush()
+
+    def __enter__(self) -> CheckpointWriter:
+        return self
+
+    def __exit__(self, kind: Any, error: BaseException | None, traceback: Any) -> None:
+        try:
+            self.flush()
+        except BaseException:
+            if error is None:
+                raise  # otherwise the error that is leaving the run says more
+
+    def flush(self) -> None:
+        """Wait for the write in flight; raise its error, if it failed."""
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def _write(self, path: Path, arrays: dict[str, np.ndarray]) -> None:
+        try:
+            write_npz(path, arrays)
+            self.written += 1
+        except BaseException as error:  # raised in the training thread by flush()
+            self._error = error
 
 
 def _load(path: Path, genotype_template: Any, key_field: str) -> tuple[MapElitesRepertoire, jax.Array, Any] | None:
@@ -140,7 +243,7 @@ def save_archive(path: Path, repertoire: MapElitesRepertoire) -> None:
     arrays = _repertoire_arrays(repertoire)
     fitnesses = arrays["fitnesses"].reshape(-1)
     arrays.update(fitnesses=fitnesses, filled=fitnesses > -np.inf)
-    atomic_write(path, lambda file: np.savez(file, **arrays))
+    write_npz(path, arrays)
 
 
 @dataclass(frozen=True)
@@ -189,17 +292,24 @@ def load_archive(path: str | os.PathLike[str]) -> Archive:
 SWEEP_CHECKPOINT = "sweep-checkpoint.npz"
 
 
+def sweep_checkpoint_arrays(
+    repertoires: MapElitesRepertoire, keys: jax.Array, states: list[RunState]
+) -> dict[str, np.ndarray]:
+    """Every run of a sweep, for one file: the archives stacked along a runs axis (only the
+    first len(states) runs: padding is not saved) and each run's counters and metrics rows,
+    copied to host memory. All runs are at the same generation."""
+    runs = len(states)
+    arrays = {name: values[:runs] for name, values in _repertoire_arrays(repertoires).items()}
+    arrays["keys"] = host_copy(jax.random.key_data(keys))[:runs]
+    arrays["progress"] = np.asarray(json.dumps([_progress(state) for state in states]))
+    return arrays
+
+
 def save_sweep_checkpoint(
     path: Path, repertoires: MapElitesRepertoire, keys: jax.Array, states: list[RunState]
 ) -> None:
-    """Write every run of a sweep atomically to one file: the archives stacked along a
-    runs axis (only the first len(states) runs: padding is not saved) and each run's
-    counters and metrics rows. All runs are at the same generation."""
-    runs = len(states)
-    arrays = {name: values[:runs] for name, values in _repertoire_arrays(repertoires).items()}
-    arrays["keys"] = np.asarray(jax.random.key_data(keys))[:runs]
-    arrays["progress"] = np.asarray(json.dumps([_progress(state) for state in states]))
-    atomic_write(path, lambda file: np.savez(file, **arrays))
+    """Write every run of a sweep atomically to one file (now, not in the background)."""
+    write_npz(path, sweep_checkpoint_arrays(repertoires, keys, states))
 
 
 def load_sweep_checkpoint(

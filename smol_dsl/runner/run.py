@@ -15,6 +15,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +24,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from smol_dsl.runner.algorithm import Evaluation, cvt_centroids, phased_map_elites
-from smol_dsl.runner.checkpoint import RunState, atomic_write, load_checkpoint, save_archive, save_checkpoint
+from smol_dsl.runner.checkpoint import (
+    CHECKPOINT,
+    CheckpointWriter,
+    RunState,
+    atomic_write,
+    checkpoint_arrays,
+    load_checkpoint,
+    save_archive,
+    save_checkpoint,
+)
 from smol_dsl.runner.config import RunConfig
+from smol_dsl.runner.footprint import fit_sweep
 from smol_dsl.schedule import Schedule
 from smol_dsl.tasks import Task, make_task
 
@@ -125,6 +136,7 @@ def run_experiment(
     `stop_after_generation` stops early (as an interruption would), for tests.
     """
     started = time.perf_counter()
+    fit_sweep(config, 1, [config.seed], jax.devices()[:1])  # refuses a run that cannot fit, before compiling
     if isinstance(task, str):
         task = make_task(
             task,
@@ -169,31 +181,32 @@ def run_experiment(
         if progress is not None:
             progress(row, total)
 
-    for generation in range(state.generation + 1, total + 1):
-        if stop_after_generation is not None and state.generation >= stop_after_generation:
-            break
-        phase = config.phase_of_generation(generation)
-        if phase != state.phase:
+    with CheckpointWriter() as writer:  # checkpoints reach the disk while training goes on
+        for generation in range(state.generation + 1, total + 1):
+            if stop_after_generation is not None and state.generation >= stop_after_generation:
+                break
+            phase = config.phase_of_generation(generation)
+            if phase != state.phase:
+                state.key, key = jax.random.split(state.key)
+                state.repertoire, evaluation = algorithm.reevaluate(
+                    state.repertoire, jnp.float32(alphas[phase]), schedule.extinction, key
+                )
+                state.phase = phase
+                state.reevaluations += evaluation.evaluated
+                state.non_finite += evaluation.non_finite
+                record(algorithm.metrics(state.repertoire), "reevaluate", evaluation)
+                if directory is not None:
+                    writer.offer(directory / CHECKPOINT, partial(checkpoint_arrays, state))
             state.key, key = jax.random.split(state.key)
-            state.repertoire, evaluation = algorithm.reevaluate(
-                state.repertoire, jnp.float32(alphas[phase]), schedule.extinction, key
+            empty = not bool(jnp.any(state.repertoire.fitnesses > -jnp.inf))
+            step = algorithm.reseed if empty else algorithm.generation
+            state.repertoire, state.emitter_state, metrics, evaluation = step(
+                state.repertoire, state.emitter_state, jnp.float32(alphas[phase]), key
             )
-            state.phase = phase
-            state.reevaluations += evaluation.evaluated
+            state.generation = generation
+            state.evaluations += evaluation.evaluated
             state.non_finite += evaluation.non_finite
-            record(algorithm.metrics(state.repertoire), "reevaluate", evaluation)
-            if directory is not None:
-                save_checkpoint(directory, state)
-        state.key, key = jax.random.split(state.key)
-        empty = not bool(jnp.any(state.repertoire.fitnesses > -jnp.inf))
-        step = algorithm.reseed if empty else algorithm.generation
-        state.repertoire, state.emitter_state, metrics, evaluation = step(
-            state.repertoire, state.emitter_state, jnp.float32(alphas[phase]), key
-        )
-        state.generation = generation
-        state.evaluations += evaluation.evaluated
-        state.non_finite += evaluation.non_finite
-        record(metrics, "reseed" if empty else "train", evaluation)
+            record(metrics, "reseed" if empty else "train", evaluation)
 
     if directory is not None and state.generation >= total:
         finish_run_directory(directory, state, task, config, schedule)

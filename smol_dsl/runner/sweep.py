@@ -14,7 +14,7 @@ import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import Any
 
@@ -26,12 +26,15 @@ from smol_dsl.runner.algorithm import Evaluation, cvt_centroids
 from smol_dsl.runner.batched import BatchedMapElites, stack_runs
 from smol_dsl.runner.checkpoint import (
     SWEEP_CHECKPOINT,
+    CheckpointWriter,
     RunState,
     atomic_write,
     load_sweep_checkpoint,
     save_sweep_checkpoint,
+    sweep_checkpoint_arrays,
 )
 from smol_dsl.runner.config import RunConfig
+from smol_dsl.runner.footprint import fit_sweep
 from smol_dsl.runner.run import (
     MetricsLog,
     RunError,
@@ -125,8 +128,10 @@ def run_sweep(
     `config` is shared (its own seed is ignored). With `out_dir`, writes `sweep.json`, the
     sweep checkpoint and one run directory per pair; with `resume`, continues from the
     last checkpoint. `devices` (default: all local devices) share the runs;
-    `runs_per_step` is how many runs a device advances at once (-1: one on CPU, all on
-    accelerators; None: all). `progress(rows, total)` gets the latest row of every run.
+    `runs_per_step` is how many runs a device advances at once (-1: one on CPU; on
+    accelerators all, or as many as fit in memory; None: all). A sweep whose archives
+    cannot fit the devices' memory is refused with a RunError before anything compiles.
+    `progress(rows, total)` gets the latest row of every run.
     `part=(k, n)` runs only every n-th pair from the k-th (one process of n sharing a
     sweep, each on its own devices; see docs/scaling.md) and returns those.
     """
@@ -138,6 +143,10 @@ def run_sweep(
     runs = every[index::parts]
     if not runs:
         raise RunError(f"the sweep has {len(every)} runs, too few for {parts} parts (processes)")
+    devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
+    footprint = fit_sweep(config, len(schedules), seeds, devices, runs_per_step, part)  # before compiling
+    if runs_per_step == -1:
+        runs_per_step = footprint.runs_per_step
     if isinstance(task, str):
         task = make_task(
             task,
@@ -149,7 +158,6 @@ def run_sweep(
     if directory is not None:
         _prepare_sweep_directory(directory, every, runs, config, resume, shared=parts > 1)
 
-    devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
     engine = batched_map_elites(
         task, config.batch_size, config.iso_sigma, config.line_sigma, devices, runs_per_step, len(runs)
     )
@@ -217,30 +225,31 @@ def run_sweep(
         if progress is not None:
             progress([state.rows[-1] for state in states], total)
 
-    for generation in range(states[0].generation + 1, total + 1):
-        if stop_after_generation is not None and generation > stop_after_generation:
-            break
-        phase = config.phase_of_generation(generation)
-        if phase != states[0].phase:
+    with CheckpointWriter() as writer:  # checkpoints reach the disk while training goes on
+        for generation in range(states[0].generation + 1, total + 1):
+            if stop_after_generation is not None and generation > stop_after_generation:
+                break
+            phase = config.phase_of_generation(generation)
+            if phase != states[0].phase:
+                keys, subkeys = engine.split(keys)
+                repertoires, evaluated, dropped = engine.reevaluate(
+                    repertoires, alphas_of(phase), starts, extinctions, subkeys
+                )
+                for r, state in enumerate(states):
+                    state.phase = phase
+                    state.reevaluations += int(evaluated[r])
+                    state.non_finite += int(dropped[r])
+                record(engine.metrics(repertoires), ["reevaluate"] * len(runs), evaluated, dropped)
+                if checkpoint is not None:
+                    writer.offer(checkpoint, partial(sweep_checkpoint_arrays, repertoires, keys, states))
             keys, subkeys = engine.split(keys)
-            repertoires, evaluated, dropped = engine.reevaluate(
-                repertoires, alphas_of(phase), starts, extinctions, subkeys
-            )
+            repertoires, metrics, dropped, reseeded = engine.step(repertoires, alphas_of(phase), starts, subkeys)
             for r, state in enumerate(states):
-                state.phase = phase
-                state.reevaluations += int(evaluated[r])
+                state.generation = generation
+                state.evaluations += config.batch_size
                 state.non_finite += int(dropped[r])
-            record(engine.metrics(repertoires), ["reevaluate"] * len(runs), evaluated, dropped)
-            if checkpoint is not None:
-                save_sweep_checkpoint(checkpoint, repertoires, keys, states)
-        keys, subkeys = engine.split(keys)
-        repertoires, metrics, dropped, reseeded = engine.step(repertoires, alphas_of(phase), starts, subkeys)
-        for r, state in enumerate(states):
-            state.generation = generation
-            state.evaluations += config.batch_size
-            state.non_finite += int(dropped[r])
-        events = ["reseed" if reseeded[r] else "train" for r in range(len(runs))]
-        record(metrics, events, np.full(len(runs), config.batch_size), dropped)
+            events = ["reseed" if reseeded[r] else "train" for r in range(len(runs))]
+            record(metrics, events, np.full(len(runs), config.batch_size), dropped)
 
     finished = states[0].generation >= total
     results = []

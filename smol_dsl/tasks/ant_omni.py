@@ -7,17 +7,22 @@ episode, clipped to [-30, 30]^2.
 
 from __future__ import annotations
 
-import brax.envs
 import jax
 import jax.numpy as jnp
-from brax.envs.base import State
+from brax.envs.base import PipelineEnv, State
 
 from smol_dsl.tasks.base import Task, deterministic_init_state, last_valid, make_policy
+from smol_dsl.tasks.quiet import brax_environment
 
 POSITION_LIMIT = 30.0
 DESCRIPTOR_LOW = (-POSITION_LIMIT, -POSITION_LIMIT)
 DESCRIPTOR_HIGH = (POSITION_LIMIT, POSITION_LIMIT)
 REWARD_OFFSET = 3.0  # QDax's offset for ant_omni
+
+
+def environment(backend: str = "spring") -> PipelineEnv:
+    """The Brax ant env this task scores policies in."""
+    return brax_environment("ant", backend=backend, debug=False)
 
 
 def make(
@@ -28,7 +33,7 @@ def make(
     backend: str = "spring",
 ) -> Task:
     """The ant_omni task."""
-    env = brax.envs.get_environment("ant", backend=backend, debug=False)
+    env = environment(backend)
     torso = env.sys.link_names.index("torso")
     low = jnp.full((2,), -POSITION_LIMIT)
     high = jnp.full((2,), POSITION_LIMIT)

@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
-import brax.envs
 import jax
 import jax.numpy as jnp
-from brax.envs.base import State
+from brax.envs.base import PipelineEnv, State
 
 from smol_dsl.tasks.base import Task, deterministic_init_state, make_policy, mean_over_valid
+from smol_dsl.tasks.quiet import brax_environment
 
 
 def duty_factor_bounds(feet: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """The descriptor box of duty factors: [0, 1] per foot."""
     return (0.0,) * feet, (1.0,) * feet
+
+
+def feet_environment(env_name: str, backend: str = "spring") -> PipelineEnv:
+    """The Brax env, with the pipeline's debug output (contacts) that duty factors need."""
+    return brax_environment(env_name, backend=backend, debug=True)
 
 
 def feet_task(
@@ -26,7 +31,7 @@ def feet_task(
 ) -> Task:
     """A Brax env scored by its own reward, described by the proportion of steps each
     foot touches the ground (contacts need the pipeline's debug output)."""
-    env = brax.envs.get_environment(env_name, backend=backend, debug=True)
+    env = feet_environment(env_name, backend)
     feet_idx = jnp.asarray([i for i, name in enumerate(env.sys.link_names) if name in feet])
 
     def feet_contact(state: State) -> jax.Array:

@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import jax
+from brax.envs.base import PipelineEnv
 
 from smol_dsl.tasks.base import Task
-from smol_dsl.tasks.feet import duty_factor_bounds, feet_task
+from smol_dsl.tasks.feet import duty_factor_bounds, feet_environment, feet_task
 
 FEET = ("bfoot", "ffoot")
 DESCRIPTOR_LOW, DESCRIPTOR_HIGH = duty_factor_bounds(len(FEET))
 REWARD_OFFSET = 9.231  # QDax's offset for halfcheetah_uni
+
+
+def environment(backend: str = "spring") -> PipelineEnv:
+    """The Brax halfcheetah env this task scores policies in."""
+    return feet_environment("halfcheetah", backend)
 
 
 def make(

@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import jax
+from brax.envs.base import PipelineEnv
 
 from smol_dsl.tasks.base import Task
-from smol_dsl.tasks.feet import duty_factor_bounds, feet_task
+from smol_dsl.tasks.feet import duty_factor_bounds, feet_environment, feet_task
 
 FEET = ("foot", "foot_left")
 DESCRIPTOR_LOW, DESCRIPTOR_HIGH = duty_factor_bounds(len(FEET))
 REWARD_OFFSET = 1.413  # QDax's offset for walker2d_uni: keeps per-step rewards positive
+
+
+def environment(backend: str = "spring") -> PipelineEnv:
+    """The Brax walker2d env this task scores policies in."""
+    return feet_environment("walker2d", backend)
 
 
 def make(

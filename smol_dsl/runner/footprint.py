@@ -1,0 +1,311 @@
+"""What a run or a sweep will need, by arithmetic, before anything is compiled.
+
+At the paper's scale the numbers decide whether a sweep can run at all: a 1024-cell
+ant_omni archive of [256, 256] policies is ~300 MB, so 80 runs hold ~24 GB of archives,
+twice that while re-evaluating (each archive and its fresh copy), and every checkpoint
+writes them all. `plan_footprint` computes these sizes from the task's shapes (found by
+tracing, `task_sizes`), the settings and the device layout; `Footprint.describe` prints
+them with the evaluation rate a time budget needs, and `fits` says whether the devices'
+memory holds them. `largest_fitting` finds the most seeds (or runs per step) that fit.
+
+The working memory of a generation is an estimate: XLA decides the real figure when it
+compiles. `POLICY_COPIES` and `STATE_COPIES` were fitted to the compiled generation program
+(`memory_analysis`, CPU) of walker2d, halfcheetah and ant_omni at batches of 64 and 256 and
+episodes of 100 and 1000 steps: its temporary memory was 5.5 to 5.8 policies' parameters
+per offspring (two parents, the offspring, the variation's noise) plus a few environment
+states; the estimate came out 0.84 to 0.95 of it, hence slightly on the safe side. The
+tests hold it to within a factor of two of the compiled figure.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from smol_dsl.runner.config import RunConfig
+
+FLOAT_BYTES = 4
+POLICY_COPIES = 6  # policy parameters alive per offspring in a generation (measured; see the docstring)
+STATE_COPIES = 4  # environment states alive per rollout (measured; see the docstring)
+BUDGET_HOURS = (1, 24, 72)
+
+
+@dataclass(frozen=True)
+class DeviceMemory:
+    """Memory one device offers, and whether the devices share the host's memory (CPUs)."""
+
+    platform: str
+    count: int
+    bytes_per_device: int
+    shares_host: bool
+
+    @property
+    def label(self) -> str:
+        return f"{self.count} {self.platform} device{'s' if self.count > 1 else ''}"
+
+
+def host_memory_bytes() -> int:
+    """Physical memory, or the container's limit where that is lower (cgroup v2 or v1)."""
+    total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    for limit in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = Path(limit).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit():
+            total = min(total, int(text))
+    return total
+
+
+def device_memory(devices: list) -> DeviceMemory:
+    """What the JAX devices offer: an accelerator's allocator limit, or for CPU devices the
+    host's memory, which they share."""
+    first = devices[0]
+    stats = first.memory_stats() if hasattr(first, "memory_stats") else None
+    if first.platform != "cpu" and stats and stats.get("bytes_limit"):
+        return DeviceMemory(first.platform, len(devices), int(stats["bytes_limit"]), shares_host=False)
+    return DeviceMemory(first.platform, len(devices), host_memory_bytes(), shares_host=True)
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """Sizes of one process's share of a sweep (a run is a sweep of one)."""
+
+    config: RunConfig
+    runs: int
+    parameters: int
+    observations: int
+    actions: int
+    archive_bytes: int  # one run's archive
+    batch_bytes: int  # one run's generation: parents, offspring and rollouts
+    along_runs: int  # the device mesh: runs axis x population axis
+    along_population: int
+    runs_per_step: int | None  # runs a device advances at once (None: all of its runs)
+    memory: DeviceMemory
+
+    @property
+    def local_runs(self) -> int:
+        """Runs (padding included) whose archives one device holds."""
+        return math.ceil(self.runs / self.along_runs)
+
+    @property
+    def parallel_runs(self) -> int:
+        """Runs a device advances at once."""
+        return self.local_runs if self.runs_per_step is None else min(self.runs_per_step, self.local_runs)
+
+    @property
+    def archives_bytes(self) -> int:
+        return self.runs * self.archive_bytes
+
+    @property
+    def checkpoint_bytes(self) -> int:
+        return self.archives_bytes
+
+    @property
+    def device_archive_bytes(self) -> int:
+        """One device's archives while re-evaluating: each archive and its fresh copy."""
+        return 2 * self.local_runs * self.archive_bytes
+
+    @property
+    def device_batch_bytes(self) -> int:
+        """One device's working memory for the runs it advances at once."""
+        return self.parallel_runs * self.batch_bytes // self.along_population
+
+    @property
+    def device_bytes(self) -> int:
+        return self.device_archive_bytes + self.device_batch_bytes
+
+    @property
+    def needed_bytes(self) -> int:
+        """What the memory that is checked must hold: per device on accelerators; on CPUs,
+        every device's share plus the host copy a checkpoint is written from."""
+        if self.memory.shares_host:
+            return self.device_bytes * self.memory.count + self.checkpoint_bytes
+        return self.device_bytes
+
+    @property
+    def available_bytes(self) -> int:
+        return self.memory.bytes_per_device
+
+    def fits(self) -> bool:
+        host_ok = self.memory.shares_host or self.checkpoint_bytes <= host_memory_bytes()
+        return self.needed_bytes <= self.available_bytes and host_ok
+
+    @property
+    def reevaluations(self) -> int:
+        """At most: every cell re-evaluated at every phase boundary."""
+        return (self.config.num_phases - 1) * self.config.num_centroids
+
+    @property
+    def evaluations(self) -> int:
+        return self.runs * (self.config.evaluations + self.reevaluations)
+
+    def describe(self, out_dir: Path | None = None) -> str:
+        """The estimate as the CLI prints it."""
+        config = self.config
+        boundaries = config.num_phases - 1
+        layers = ", ".join(str(size) for size in config.hidden_layer_sizes)
+        lines = [
+            f"policy: [{layers}] MLP, {self.observations} observations -> {self.actions} actions: "
+            f"{self.parameters:,} parameters; archive: {config.num_centroids} cells, "
+            f"{_size(self.archive_bytes)} per run, {_size(self.archives_bytes)} for {self.runs} run(s)",
+            f"device memory ({self.memory.label}: runs split {self.along_runs} way(s), each batch "
+            f"{self.along_population} way(s)): "
+            f"{_size(self.device_archive_bytes)} of archives while re-evaluating + {_size(self.device_batch_bytes)} "
+            f"for batches of {config.batch_size} ({self.parallel_runs} run(s) at once) "
+            f"= {_size(self.device_bytes)} per device"
+            + (
+                f"; with the checkpoint's host copy {_size(self.needed_bytes)} of {_size(self.available_bytes)} "
+                "host memory"
+                if self.memory.shares_host
+                else f" of {_size(self.available_bytes)}"
+            ),
+            f"checkpoint: {_size(self.checkpoint_bytes)}, rewritten in the background at up to "
+            f"{boundaries} phase boundaries (at most {_size(self.checkpoint_bytes * boundaries)} written in all)"
+            + _free_space(out_dir, self.checkpoint_bytes),
+            f"evaluations: {self.runs} x ({config.evaluations:,} training + up to {self.reevaluations:,} "
+            f"re-evaluation) = {_count(self.evaluations)} ({_count(self.evaluations * config.episode_length)} "
+            f"environment steps of {config.episode_length})",
+            "to finish in "
+            + "; ".join(
+                f"{hours} h: {_count(self.evaluations / (3600 * hours))} evals/s "
+                f"({_count(self.evaluations * config.episode_length / (3600 * hours))} steps/s)"
+                for hours in BUDGET_HOURS
+            ),
+        ]
+        return "\n".join(lines)
+
+
+def plan_footprint(
+    config: RunConfig,
+    runs: int,
+    memory: DeviceMemory,
+    runs_per_step: int | None = None,
+) -> Footprint:
+    """The footprint of `runs` runs of `config` on these devices (runs_per_step None: all of
+    a device's runs at once)."""
+    from smol_dsl.runner.batched import mesh_shape
+    from smol_dsl.tasks import task_sizes
+
+    sizes = task_sizes(config.task, tuple(config.hidden_layer_sizes))
+    descriptors = sizes.descriptors
+    archive = config.num_centroids * (sizes.parameters + 1 + 2 * descriptors) * FLOAT_BYTES
+    policies = POLICY_COPIES * config.batch_size * sizes.parameters * FLOAT_BYTES
+    per_episode = config.episode_length * (descriptors + 2) * FLOAT_BYTES  # rewards, descriptors, ends
+    rollouts = config.batch_size * (STATE_COPIES * sizes.state_bytes + per_episode)
+    along_runs, along_population = mesh_shape(memory.count, runs, config.batch_size)
+    return Footprint(
+        config=config,
+        runs=runs,
+        parameters=sizes.parameters,
+        observations=sizes.observations,
+        actions=sizes.actions,
+        archive_bytes=archive,
+        batch_bytes=policies + rollouts,
+        along_runs=along_runs,
+        along_population=along_population,
+        runs_per_step=runs_per_step,
+        memory=memory,
+    )
+
+
+def largest_fitting(candidates: range, footprint_of: Callable[[int], Footprint]) -> int | None:
+    """The largest candidate whose footprint fits, or None (footprints grow with it)."""
+    for candidate in reversed(candidates):
+        if footprint_of(candidate).fits():
+            return candidate
+    return None
+
+
+def _free_space(directory: Path | None, needed: int) -> str:
+    if directory is None:
+        return ""
+    existing = directory
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    try:
+        free = shutil.disk_usage(existing).free
+    except OSError:
+        return ""
+    warning = "; not enough for a checkpoint and its replacement" if free < 2 * needed else ""
+    return f"; {_size(free)} free in {existing}{warning}"
+
+
+def _size(count: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if count >= scale:
+            return f"{count / scale:.1f} {unit}"
+    return f"{count:.0f} B"
+
+
+def _count(count: float) -> str:
+    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if count >= scale:
+            return f"{count / scale:.1f} {unit}"
+    return f"{count:.0f}"
+
+
+def fit_sweep(
+    config: RunConfig,
+    num_schedules: int,
+    seeds: Sequence[int],
+    devices: Sequence[Any],
+    runs_per_step: int | None = -1,
+    part: tuple[int, int] = (0, 1),
+) -> Footprint:
+    """The footprint of this process's share of a sweep (a run is a sweep of one schedule
+    and one seed) on `devices`, or a RunError that says what does not fit and the most
+    seeds that would.
+
+    `runs_per_step` as in `run_sweep`: -1 lets the device choose (one run at a time on a
+    CPU; on an accelerator as many as fit, all of them if they do), None all of them.
+    """
+    from smol_dsl.runner.run import RunError
+
+    memory = device_memory(list(devices))
+    index, parts = part
+
+    def runs_with(count: int) -> int:
+        return len(range(index, num_schedules * count, parts))
+
+    def plan(runs: int, per_step: int | None) -> Footprint:
+        return plan_footprint(config, runs, memory, per_step)
+
+    runs = runs_with(len(seeds))
+    automatic = runs_per_step == -1
+    chosen = (1 if memory.platform == "cpu" else None) if automatic else runs_per_step
+    footprint = plan(runs, chosen)
+    if footprint.fits():
+        return footprint
+    if automatic and chosen is None:  # an accelerator: fewer runs at once
+        most = largest_fitting(range(1, footprint.local_runs), lambda k: plan(runs, k))
+        if most is not None:
+            return plan(runs, most)
+    least = plan(runs, 1)
+    what = "one run" if runs == 1 else f"{runs} runs"
+    where = (
+        f"the {_size(least.available_bytes)} of host memory that the {memory.label} share"
+        if memory.shares_host
+        else f"the {_size(least.available_bytes)} of one {memory.platform} device"
+    )
+    message = (
+        f"{what} of {config.task} need more than {where}: {_size(least.archive_bytes)} of archive per run, "
+        f"held twice while it is re-evaluated ({_size(least.device_archive_bytes)} per device), plus "
+        f"{_size(least.device_batch_bytes)} for a batch of {config.batch_size}"
+        + (f" and the checkpoint's host copy ({_size(least.checkpoint_bytes)})" if memory.shares_host else "")
+        + f", {_size(least.needed_bytes)} in all. "
+    )
+    most_seeds = largest_fitting(range(1, len(seeds)), lambda count: plan(runs_with(count), 1))
+    if most_seeds is not None:
+        message += (
+            f"At most --seeds {most_seeds} fits with {num_schedules} schedule(s) on {memory.label}; "
+            "or share the runs between processes on more devices (--num-processes, see docs/scaling.md)."
+        )
+    else:
+        message += "Not even one run fits: use fewer --centroids or a smaller --batch-size."
+    raise RunError(message)
