@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -296,7 +297,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     import jax
 
-    fit = lambda: fit_sweep(config, 1, [config.seed], jax.devices()[:1])  # noqa: E731
+    fit = partial(fit_sweep, config, 1, [config.seed], jax.devices()[:1])
     _announce_footprint("run", config, fit, out, args.dry_run)
     if args.dry_run:
         return EXIT_OK
@@ -374,7 +375,7 @@ def _sweep(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     runs_per_step = -1 if args.runs_per_step is None else args.runs_per_step
-    fit = lambda: fit_sweep(config, len(schedules), seeds, devices, runs_per_step, part)  # noqa: E731
+    fit = partial(fit_sweep, config, len(schedules), seeds, devices, runs_per_step, part)
     footprint = _announce_footprint("sweep", config, fit, out, args.dry_run)
     if args.dry_run:
         return EXIT_OK

@@ -82,11 +82,17 @@ class Footprint:
     observations: int
     actions: int
     archive_bytes: int  # one run's archive
-    batch_bytes: int  # one run's generation: parents, offspring and rollouts
+    policy_bytes: int  # one run's generation: parents, offspring and variation noise (on every device of its batch)
+    rollout_bytes: int  # one run's generation: environment states and per-step records (split between them)
     along_runs: int  # the device mesh: runs axis x population axis
     along_population: int
     runs_per_step: int | None  # runs a device advances at once (None: all of its runs)
     memory: DeviceMemory
+
+    @property
+    def batch_bytes(self) -> int:
+        """One run's generation on one device."""
+        return self.policy_bytes + self.rollout_bytes
 
     @property
     def local_runs(self) -> int:
@@ -114,7 +120,7 @@ class Footprint:
     @property
     def device_batch_bytes(self) -> int:
         """One device's working memory for the runs it advances at once."""
-        return self.parallel_runs * self.batch_bytes // self.along_population
+        return self.parallel_runs * (self.policy_bytes + self.rollout_bytes // self.along_population)
 
     @property
     def device_bytes(self) -> int:
@@ -125,7 +131,7 @@ class Footprint:
         """What the memory that is checked must hold: per device on accelerators; on CPUs,
         every device's share plus the host copy a checkpoint is written from."""
         if self.memory.shares_host:
-            return self.device_bytes * self.memory.count + self.checkpoint_bytes
+            return self.device_bytes * self.along_runs * self.along_population + self.checkpoint_bytes
         return self.device_bytes
 
     @property
@@ -206,7 +212,8 @@ def plan_footprint(
         observations=sizes.observations,
         actions=sizes.actions,
         archive_bytes=archive,
-        batch_bytes=policies + rollouts,
+        policy_bytes=policies,
+        rollout_bytes=rollouts,
         along_runs=along_runs,
         along_population=along_population,
         runs_per_step=runs_per_step,
