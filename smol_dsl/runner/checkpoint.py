@@ -185,12 +185,6 @@ class CheckpointWriter:
             self._thread.start()
         return True
 
-    def write_now(self, path: Path, arrays: dict[str, np.ndarray]) -> None:
-        """Wait for the write in flight, then write this checkpoint before returning."""
-        self.flush()
-        self._write(path, arrays)
-        self.flush()
-
     def __enter__(self) -> CheckpointWriter:
         return self
 

@@ -37,12 +37,14 @@ BUDGET_HOURS = (1, 24, 72)
 
 @dataclass(frozen=True)
 class DeviceMemory:
-    """Memory one device offers, and whether the devices share the host's memory (CPUs)."""
+    """Memory one device offers, whether the devices share the host's memory (CPUs), and the
+    host's memory (where checkpoints are copied to)."""
 
     platform: str
     count: int
     bytes_per_device: int
     shares_host: bool
+    host_bytes: int
 
     @property
     def label(self) -> str:
@@ -66,10 +68,11 @@ def device_memory(devices: list) -> DeviceMemory:
     """What the JAX devices offer: an accelerator's allocator limit, or for CPU devices the
     host's memory, which they share."""
     first = devices[0]
+    host = host_memory_bytes()
     stats = first.memory_stats() if hasattr(first, "memory_stats") else None
     if first.platform != "cpu" and stats and stats.get("bytes_limit"):
-        return DeviceMemory(first.platform, len(devices), int(stats["bytes_limit"]), shares_host=False)
-    return DeviceMemory(first.platform, len(devices), host_memory_bytes(), shares_host=True)
+        return DeviceMemory(first.platform, len(devices), int(stats["bytes_limit"]), False, host)
+    return DeviceMemory(first.platform, len(devices), host, True, host)
 
 
 @dataclass(frozen=True)
@@ -139,7 +142,7 @@ class Footprint:
         return self.memory.bytes_per_device
 
     def fits(self) -> bool:
-        host_ok = self.memory.shares_host or self.checkpoint_bytes <= host_memory_bytes()
+        host_ok = self.memory.shares_host or self.checkpoint_bytes <= self.memory.host_bytes
         return self.needed_bytes <= self.available_bytes and host_ok
 
     @property
@@ -272,6 +275,7 @@ def fit_sweep(
     `runs_per_step` as in `run_sweep`: -1 lets the device choose (one run at a time on a
     CPU; on an accelerator as many as fit, all of them if they do), None all of them.
     """
+    from smol_dsl.runner.batched import default_runs_per_step
     from smol_dsl.runner.run import RunError
 
     memory = device_memory(list(devices))
@@ -285,7 +289,7 @@ def fit_sweep(
 
     runs = runs_with(len(seeds))
     automatic = runs_per_step == -1
-    chosen = (1 if memory.platform == "cpu" else None) if automatic else runs_per_step
+    chosen = default_runs_per_step(list(devices)) if automatic else runs_per_step
     footprint = plan(runs, chosen)
     if footprint.fits():
         return footprint
