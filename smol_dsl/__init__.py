@@ -5,11 +5,20 @@
 >>> alphas = human.phase_alphas(100, key=None)  # alpha for each of 100 phases
 """
 
-from smol_dsl.errors import ScheduleError
+from smol_dsl.errors import ScheduleError, UserInputError
 from smol_dsl.resources import library_names
 from smol_dsl.schedule import Schedule, load, parse
 from smol_dsl.verify import Certificate
 
 __version__ = "0.1.0"
 
-__all__ = ["Certificate", "Schedule", "ScheduleError", "__version__", "library_names", "load", "parse"]
+__all__ = [
+    "Certificate",
+    "Schedule",
+    "ScheduleError",
+    "UserInputError",
+    "__version__",
+    "library_names",
+    "load",
+    "parse",
+]

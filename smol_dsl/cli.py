@@ -14,6 +14,8 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from smol_dsl.errors import UserInputError
+
 if TYPE_CHECKING:
     from smol_dsl.runner import RunConfig
     from smol_dsl.runner.footprint import Footprint
@@ -25,7 +27,7 @@ EXIT_INTERNAL = 1
 EXIT_USAGE = 2
 
 
-class UsageError(Exception):
+class UsageError(UserInputError):
     """Bad command-line input that argparse itself does not catch."""
 
 
@@ -474,6 +476,21 @@ def _report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _usage_message(command: str, error: UserInputError) -> str:
+    from smol_dsl.errors import ScheduleError
+
+    if isinstance(error, ScheduleError):  # already "FILE:LINE:COL: error: ..." with an excerpt
+        return str(error)
+    return f"smol-dsl {command}: error: {error}"
+
+
+def _os_error_text(error: OSError) -> str:
+    reason = error.strerror or type(error).__name__
+    if error.filename is not None:
+        return f"{error.filename}: {reason}"
+    return str(error) or reason
+
+
 def use_cpu_cores_as_devices() -> None:
     """Before JAX starts: split a CPU into one XLA device per core (unless XLA_FLAGS
     already says how many), so that a sweep's runs use every core. It changes nothing
@@ -493,8 +510,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     handlers = {"check": _check, "plot": _plot, "run": _run, "sweep": _sweep, "report": _report}
     try:
         return handlers[args.command](args)
-    except UsageError as error:
-        print(f"smol-dsl {args.command}: error: {error}", file=sys.stderr)
+    except UserInputError as error:
+        # Every error a user can cause ends here: one message, exit status 2.
+        print(_usage_message(args.command, error), file=sys.stderr)
+        return EXIT_USAGE
+    except RecursionError:
+        print(f"smol-dsl {args.command}: error: input nested too deeply to read", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as error:
+        # The environment, not a bug: a full disk, a read-only file system, a path that is
+        # not a directory. Name the file when the OS says which.
+        print(f"smol-dsl {args.command}: error: {_os_error_text(error)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("smol-dsl: interrupted", file=sys.stderr)

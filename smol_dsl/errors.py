@@ -1,4 +1,5 @@
-"""One error type for everything a `.sched` file can get wrong."""
+"""The errors a user can cause: `UserInputError`, the base of every error the CLI reports
+with exit status 2, and `ScheduleError` for everything a `.sched` file can get wrong."""
 
 from __future__ import annotations
 
@@ -14,7 +15,16 @@ class Span:
     length: int = 1
 
 
-class ScheduleError(Exception):
+class UserInputError(Exception):
+    """Bad input or a bad environment, not a bug: a file, option or directory that cannot be used.
+
+    The message names the file or option and says what to do. The library raises subclasses
+    (`ScheduleError`, `smol_dsl.runner.RunError`, `smol_dsl.report.ReportError`); the CLI
+    prints the message and exits with status 2, without a traceback.
+    """
+
+
+class ScheduleError(UserInputError):
     """A schedule file that cannot be parsed, compiled or verified.
 
     The message names the file, line and column, shows the offending line with a caret

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from smol_dsl.errors import UserInputError
 from smol_dsl.runner.config import RunConfig
 from smol_dsl.runner.run import alpha_one_evaluations
 
@@ -38,7 +39,7 @@ ORDER = ("SMOL", "SMOL-Reverse", "SMOL-Human", "Vanilla MAP-Elites", *ABLATIONS)
 SIGNIFICANCE = 0.05
 
 
-class ReportError(Exception):
+class ReportError(UserInputError):
     """Run directories that cannot be reported on together, with what to do instead."""
 
 

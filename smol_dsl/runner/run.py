@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from smol_dsl.errors import UserInputError
 from smol_dsl.runner.algorithm import Evaluation, cvt_centroids, phased_map_elites
 from smol_dsl.runner.checkpoint import (
     CHECKPOINT,
@@ -54,7 +55,7 @@ METRIC_FIELDS = (
 """Columns of metrics.csv; `event` is init, train, reevaluate or reseed."""
 
 
-class RunError(Exception):
+class RunError(UserInputError):
     """A run that cannot start: bad settings, or an output directory that would be lost."""
 
 
