@@ -44,7 +44,7 @@ def to_jax(expr: sp.Expr) -> Callable[[jnp.ndarray], jnp.ndarray]:
             return product
         if node.is_Pow:
             base, exponent = node.args
-            if exponent.is_Integer and abs(int(exponent)) <= 64:
+            if exponent.is_Integer:  # lax.integer_pow: repeated squaring, any sign of base
                 return jnp.power(evaluate(base, t), int(exponent))
             # Verification proved the base >= 0 over the segment; float rounding at the
             # segment's ends may still make it -1e-9, so clamp rather than return NaN.
@@ -76,7 +76,15 @@ def _fold(op: Callable[[jnp.ndarray, jnp.ndarray], jnp.ndarray], values: list[jn
 
 
 def bell(params: BellParams, segment_start: float, segment_end: float) -> Callable[[jnp.ndarray], jnp.ndarray]:
-    """f(t) for a bell segment on [start, end], careful at very wide and very narrow widths."""
+    """f(t) for a bell segment on [start, end], finite for every width the language allows.
+
+    Each half is base + (peak - base) * (G(t) - G(edge)) / (1 - G(edge)) with the Gaussian
+    G(t) = exp(-x(t)) and x(t) = ((t - peak_at) / width)**2 / 2. It is computed in three forms:
+    directly when G(edge) is small; with expm1 when G(edge) is close to 1 (a wide bell), to
+    avoid cancellation; and as its limit 1 - r, r = ((t - peak_at) / (edge - peak_at))**2, when
+    x(edge) underflows to 0 (a bell far wider than its segment is a parabola). x may overflow to
+    inf for a narrow bell, which exp takes to 0; no form divides 0 by 0 or multiplies inf by 0.
+    """
     start_value, peak, end_value = float(params.start), float(params.peak), float(params.end)
     peak_at, width = float(params.peak_at), float(params.width)
 
@@ -84,17 +92,20 @@ def bell(params: BellParams, segment_start: float, segment_end: float) -> Callab
         rising = t < peak_at
         edge = jnp.where(rising, segment_start, segment_end)
         base = jnp.where(rising, start_value, end_value)
-        scale = 1.0 / (2.0 * width**2)
-        at_edge = scale * (edge - peak_at) ** 2  # -log G(edge)
-        at_t = scale * (t - peak_at) ** 2  # -log G(t)
-        # (G(t) - G(edge)) / (1 - G(edge)), in two forms: direct when G(edge) is small,
-        # with expm1 when G(edge) is close to 1 (a wide bell) to avoid cancellation.
+        if width >= 2.0**-60:  # 1 / (2 width**2) fits float32
+            scale = 1.0 / (2.0 * width**2)
+            at_t = scale * (t - peak_at) ** 2  # -log G(t)
+            at_edge = scale * (edge - peak_at) ** 2  # -log G(edge)
+        else:
+            at_t = 0.5 * ((t - peak_at) / width) ** 2
+            at_edge = 0.5 * ((edge - peak_at) / width) ** 2
+        ratio = jnp.clip(((t - peak_at) / (edge - peak_at)) ** 2, 0.0, 1.0)  # at_t / at_edge
         direct = (jnp.exp(-at_t) - jnp.exp(-at_edge)) / (1.0 - jnp.exp(-at_edge))
-        gentle_edge = jnp.minimum(at_edge, 1.0)
-        careful = (
+        gentle_edge = jnp.clip(at_edge, 1e-30, 1.0)  # only used where at_edge is in this range
+        gentle = (
             jnp.exp(-gentle_edge) * jnp.expm1(gentle_edge - jnp.minimum(at_t, gentle_edge)) / -jnp.expm1(-gentle_edge)
         )
-        shape = jnp.where(at_edge > 1.0, direct, careful)
-        return base + (peak - base) * shape
+        shape = jnp.where(at_edge > 1.0, direct, jnp.where(at_edge > 1e-30, gentle, 1.0 - ratio))
+        return base + (peak - base) * jnp.clip(shape, 0.0, 1.0)
 
     return function

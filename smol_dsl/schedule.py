@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import bisect
 import math
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -14,7 +16,7 @@ import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
 from smol_dsl.resources import library_dir, library_names
-from smol_dsl.symbolic import SymbolicProgram, SymbolicSegment, compile_program, percent
+from smol_dsl.symbolic import SymbolicProgram, SymbolicSegment, T, compile_program, percent
 from smol_dsl.syntax import parse_program
 from smol_dsl.verify import Certificate, tail_start, verify
 
@@ -27,6 +29,28 @@ RANDOM_BIN_TOLERANCE = 1e-4
 
 def _fraction(value: sp.Rational) -> Fraction:
     return Fraction(int(value.p), int(value.q))
+
+
+@dataclass(frozen=True)
+class _Tables:
+    """Per-segment numbers from which alpha is gathered, so that evaluating a schedule of any
+    number of segments holds O(len(t)) values, not one array per segment.
+
+    A table-shaped segment is `offset + scale * u` with u = (t - start) / (end - start) in
+    [0, 1] (constant, linear, tail and every segment of the alpha == 1 tail), or a random one
+    `low + span * draw[first_draw + bin]`; formula segments (expr, bell) are evaluated one by
+    one and selected with `where`.
+    """
+
+    starts: np.ndarray  # float64, segment starts
+    inverse_lengths: np.ndarray  # 1 / (end - start)
+    offsets: np.ndarray
+    scales: np.ndarray
+    is_random: np.ndarray  # bool
+    first_draws: np.ndarray  # int32: where a random segment's draws start in the flat draws
+    draw_counts: np.ndarray  # int32: its number of draws (1 elsewhere)
+    random_every: np.ndarray  # its `every` (1 elsewhere)
+    formulas: tuple[int, ...]  # indices of segments evaluated by their own function
 
 
 class Schedule:
@@ -54,7 +78,9 @@ class Schedule:
         self.extinction: float = float(program.extinction)
         self.segments: tuple[SymbolicSegment, ...] = program.segments
         self.tail_start: Fraction = _fraction(tail_start(self.segments))
-        self._evaluators: list[Callable[..., Any]] | None = None
+        self._evaluators: dict[int, Callable[..., Any]] | None = None
+        self._table_cache: _Tables | None = None
+        self._phase_table_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._phase_alphas_compiled: dict[int, Callable[..., Any]] = {}
 
     # ------------------------------------------------------------------ symbolic
@@ -78,10 +104,9 @@ class Schedule:
         import jax.numpy as jnp
 
         t = jnp.clip(jnp.asarray(t, dtype=jnp.result_type(float)), 0.0, 1.0)
-        starts = jnp.asarray([float(s.start) for s in self.segments[1:]], dtype=t.dtype)
-        index = jnp.searchsorted(starts, t, side="right")
-        bins = [self._bin_of(segment, t) for segment in self.segments]
-        return self._select(t, index, bins, key)
+        tables = self._tables()
+        index = jnp.searchsorted(jnp.asarray(tables.starts[1:], dtype=t.dtype), t, side="right")
+        return self._select(t, index, self._bin_of(t, index), key)
 
     def phase_alpha(self, k: jax.typing.ArrayLike, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """alpha during phase `k` of `num_phases`: the curve at the phase's start, t = k / N.
@@ -95,9 +120,7 @@ class Schedule:
         segment_of, bin_of = self._phase_tables(num_phases)
         k = jnp.clip(jnp.asarray(k, dtype=jnp.int32), 0, num_phases - 1)
         t = k.astype(jnp.result_type(float)) / num_phases
-        index = jnp.asarray(segment_of)[k]
-        bins = [jnp.asarray(bin_of[j])[k] for j in range(len(self.segments))]
-        return self._select(t, index, bins, key)
+        return self._select(t, jnp.asarray(segment_of)[k], jnp.asarray(bin_of)[k], key)
 
     def phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """alpha for every phase of `num_phases`, shape (num_phases,)."""
@@ -111,6 +134,27 @@ class Schedule:
                 lambda key: self.phase_alpha(jnp.arange(num_phases), num_phases, key)
             )
         return self._phase_alphas_compiled[num_phases](_default_key(key))
+
+    def checked_phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> np.ndarray:
+        """`phase_alphas` on the host, refused with a ScheduleError if any is not finite and positive.
+
+        The certificate proves this never happens; runners call it before training anyway, so
+        that a defect can never waste a run.
+        """
+        alphas = np.asarray(self.phase_alphas(num_phases, key))
+        bad = np.flatnonzero(~(np.isfinite(alphas) & (alphas > 0)))
+        if bad.size:
+            k = int(bad[0])
+            segment = self.segments[int(self._phase_tables(num_phases)[0][k])]
+            raise ScheduleError(
+                f"alpha of phase {k} of {num_phases} (t = {percent(Fraction(k, num_phases))}, segment "
+                f"{segment.index + 1}) is {alphas[k]} in float32; {bad.size} phase(s) are not finite and positive",
+                span=segment.span,
+                hint="this is a bug in smol-dsl's verification; please report the schedule",
+                source=self.source,
+                path=self.path,
+            )
+        return alphas
 
     def as_optax(
         self, total_steps: int, *, num_phases: int | None = None, key: jax.Array | None = None
@@ -156,61 +200,113 @@ class Schedule:
         ]
 
     # ------------------------------------------------------------------ internals
-    def _bin_of(self, segment: SymbolicSegment, t: jax.Array) -> jax.Array | None:
+    def _bin_of(self, t: jax.Array, index: jax.Array) -> jax.Array:
+        """The random bin of t within its segment (0 outside random segments)."""
         import jax.numpy as jnp
 
-        if segment.random is None:
-            return None
-        position = (t - float(segment.start)) / float(segment.random.every)
-        bins = jnp.floor(position + RANDOM_BIN_TOLERANCE).astype(jnp.int32)
-        return jnp.clip(bins, 0, segment.random.count - 1)
+        tables = self._tables()
+        if not tables.is_random.any():
+            return jnp.zeros(t.shape, dtype=jnp.int32)
+        start = jnp.asarray(tables.starts, dtype=t.dtype)[index]
+        every = jnp.asarray(tables.random_every, dtype=t.dtype)[index]
+        bins = jnp.floor((t - start) / every + RANDOM_BIN_TOLERANCE).astype(jnp.int32)
+        return jnp.clip(bins, 0, jnp.asarray(tables.draw_counts)[index] - 1)
 
-    def _phase_tables(self, num_phases: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    def _phase_tables(self, num_phases: int) -> tuple[np.ndarray, np.ndarray]:
+        """For each phase k: its segment and its random bin, in exact rational arithmetic."""
         _check_phases(num_phases)
-        starts = [_fraction(s.start) for s in self.segments]
-        segment_of = np.zeros(num_phases, dtype=np.int32)
-        bin_of = [np.zeros(num_phases, dtype=np.int32) for _ in self.segments]
-        for k in range(num_phases):
-            t = Fraction(k, num_phases)
-            j = max(i for i, s in enumerate(starts) if s <= t)
-            segment_of[k] = j
-            random = self.segments[j].random
-            if random is not None:
-                bin_of[j][k] = min(math.floor((t - starts[j]) / _fraction(random.every)), random.count - 1)
-        return segment_of, bin_of
+        if num_phases not in self._phase_table_cache:
+            starts = [_fraction(s.start) for s in self.segments]
+            segment_of = np.zeros(num_phases, dtype=np.int32)
+            bin_of = np.zeros(num_phases, dtype=np.int32)
+            for k in range(num_phases):
+                t = Fraction(k, num_phases)
+                j = bisect.bisect_right(starts, t) - 1
+                segment_of[k] = j
+                random = self.segments[j].random
+                if random is not None:
+                    bin_of[k] = min(math.floor((t - starts[j]) / _fraction(random.every)), random.count - 1)
+            self._phase_table_cache[num_phases] = (segment_of, bin_of)
+        return self._phase_table_cache[num_phases]
 
-    def _select(self, t: jax.Array, index: jax.Array, bins: list[jax.Array | None], key: Any) -> jax.Array:
+    def _select(self, t: jax.Array, index: jax.Array, bins: jax.Array, key: Any) -> jax.Array:
+        """alpha at t, given t's segment `index` and random bin: gathered from the tables, then
+        each formula segment evaluated and put in place with `where` (O(len(t)) memory)."""
         import jax.numpy as jnp
 
-        evaluators = self._compiled()
-        draws = self.draws(key) if any(s.random is not None for s in self.segments) else None
-        values = []
-        for j, (segment, evaluate) in enumerate(zip(self.segments, evaluators)):
-            inside = jnp.clip(t, float(segment.start), float(segment.end))
-            if segment.random is not None:
-                assert draws is not None and bins[j] is not None
-                low, high = float(segment.random.low), float(segment.random.high)
-                values.append(low + (high - low) * draws[j][bins[j]])
-            else:
-                values.append(evaluate(inside))
-        values = [jnp.broadcast_to(v, t.shape).astype(t.dtype) for v in values]
-        if len(values) == 1:
-            return values[0]
-        return jnp.select([index == j for j in range(len(values))], values, default=values[-1])
+        tables = self._tables()
 
-    def _compiled(self) -> list[Callable[..., Any]]:
+        def table(values: np.ndarray) -> jax.Array:
+            return jnp.asarray(values, dtype=t.dtype)[index]
+
+        start = table(tables.starts)
+        fraction = jnp.clip((t - start) * table(tables.inverse_lengths), 0.0, 1.0)
+        if tables.is_random.any():
+            draws = jnp.concatenate([d for d in self.draws(key) if d is not None]).astype(t.dtype)
+            drawn = draws[jnp.asarray(tables.first_draws)[index] + bins]
+            fraction = jnp.where(jnp.asarray(tables.is_random)[index], drawn, fraction)
+        alpha = table(tables.offsets) + table(tables.scales) * fraction
+        evaluators = self._compiled()
+        for j in tables.formulas:
+            segment = self.segments[j]
+            inside = jnp.clip(t, float(segment.start), float(segment.end))
+            alpha = jnp.where(index == j, evaluators[j](inside).astype(t.dtype), alpha)
+        return alpha
+
+    def _tables(self) -> _Tables:
+        if self._table_cache is None:
+            count = len(self.segments)
+            offsets, scales = np.zeros(count), np.zeros(count)
+            first_draws, draw_counts = np.zeros(count, dtype=np.int32), np.ones(count, dtype=np.int32)
+            random_every, is_random = np.ones(count), np.zeros(count, dtype=bool)
+            formulas = []
+            drawn = 0
+            for j, segment in enumerate(self.segments):
+                if _fraction(segment.start) >= self.tail_start:
+                    # proven identically 1 (say sin(t)**2 + cos(t)**2): exactly 1.0 in floats too
+                    offsets[j] = 1.0
+                elif segment.random is not None:
+                    offsets[j] = float(segment.random.low)
+                    scales[j] = float(segment.random.high - segment.random.low)
+                    is_random[j] = True
+                    first_draws[j], draw_counts[j] = drawn, segment.random.count
+                    random_every[j] = float(segment.random.every)
+                elif segment.kind == "constant":
+                    offsets[j] = float(segment.pieces[0].expr)
+                elif segment.kind == "linear":
+                    at_start = segment.pieces[0].expr.subs(T, segment.start)
+                    at_end = segment.pieces[0].expr.subs(T, segment.end)
+                    offsets[j], scales[j] = float(at_start), float(at_end - at_start)
+                else:
+                    formulas.append(j)
+                if segment.random is not None:
+                    drawn += segment.random.count
+            starts = np.array([float(s.start) for s in self.segments])
+            ends = np.array([float(s.end) for s in self.segments])
+            self._table_cache = _Tables(
+                starts=starts,
+                inverse_lengths=1.0 / (ends - starts),
+                offsets=offsets,
+                scales=scales,
+                is_random=is_random,
+                first_draws=first_draws,
+                draw_counts=draw_counts,
+                random_every=random_every,
+                formulas=tuple(formulas),
+            )
+        return self._table_cache
+
+    def _compiled(self) -> dict[int, Callable[..., Any]]:
+        """The JAX function of each formula segment (expr or bell)."""
         if self._evaluators is None:
             from smol_dsl.jaxify import bell, to_jax
 
-            def evaluator(segment: SymbolicSegment) -> Callable[..., Any] | None:
-                if _fraction(segment.start) >= self.tail_start:
-                    # proven identically 1 (say sin(t)**2 + cos(t)**2): exactly 1.0 in floats too
-                    return to_jax(sp.Integer(1))
+            def evaluator(segment: SymbolicSegment) -> Callable[..., Any]:
                 if segment.bell is not None:
                     return bell(segment.bell, float(segment.start), float(segment.end))
-                return None if segment.random else to_jax(segment.pieces[0].expr)
+                return to_jax(segment.pieces[0].expr)
 
-            self._evaluators = [evaluator(s) for s in self.segments]
+            self._evaluators = {j: evaluator(self.segments[j]) for j in self._tables().formulas}
         return self._evaluators
 
     def __repr__(self) -> str:

@@ -25,7 +25,13 @@ U = sp.Symbol("u", real=True)
 
 DEFAULT_RANDOM_EVERY = sp.Rational(1, 100)  # "a new alpha every schedule step" (1%)
 MAX_RANDOM_DRAWS = 1_000_000
+"""Random draws of a whole schedule (all its random segments together)."""
 MAX_EXPONENT = 10_000
+MAX_SEGMENTS = 1_000
+"""Segments of a schedule; evaluation stays memory-linear, verification takes about 1 ms each."""
+MIN_SEGMENT = sp.Rational(1, 2**24)
+"""Shortest segment (and distance of a bell's peak from its ends): float32's resolution of t near 1."""
+MIN_BELL_WIDTH, MAX_BELL_WIDTH = sp.Rational(1, 2**100), sp.Integer(2**100)
 
 FUNCTIONS: dict[str, tuple[Callable[..., sp.Expr], int | None]] = {
     "exp": (sp.exp, 1),
@@ -123,7 +129,8 @@ class SymbolicProgram:
 def percent(value: sp.Expr | Fraction | float) -> str:
     """Format a fraction of the run as a percentage: 9/10 -> '90%'."""
     number = float(value) * 100
-    text = f"{number:.6g}" if not math.isclose(number, round(number), abs_tol=1e-9) else str(round(number))
+    whole = math.isclose(number, round(number), abs_tol=1e-9) and (number == 0 or abs(number) >= 1e-6)
+    text = str(round(number)) if whole else f"{number:.6g}"
     return f"{text}%"
 
 
@@ -265,6 +272,12 @@ def _finite_real(value: sp.Expr, node: ast.Expr, what: str) -> sp.Expr:
         number = complex(value.evalf(30))
     except (TypeError, ValueError):
         number = complex(math.nan)
+    if value.is_real and value.is_finite and not math.isfinite(number.real):
+        raise ScheduleError(
+            f"{what} is {sp.N(value, 3)}, out of range",
+            span=_span(node),
+            hint="values must stay below about 1e300 in size; alpha is a modest factor like 1.5",
+        )
     if value.has(sp.zoo, sp.nan, sp.oo, -sp.oo) or not math.isfinite(number.real) or abs(number.imag) > 0:
         raise ScheduleError(
             f"{what} is not a finite real number (it is {value})",
@@ -324,6 +337,13 @@ def _segment(builder: _Builder, index: int, node: ast.Segment) -> SymbolicSegmen
             span=node.span,
             hint="a segment's end must come after its start, e.g. `0% .. 90%`",
         )
+    if end - start < MIN_SEGMENT:
+        raise ScheduleError(
+            f"{label} is too short: {percent(start)} .. {percent(end)} is less than 2**-24 of the run",
+            span=node.span,
+            hint="progress t is a 32-bit float, which cannot tell positions this close apart near the end "
+            "of the run; make the segment at least 1e-5% long, or remove it",
+        )
     shape = node.shape
     kind = _shape_kind(shape)
 
@@ -354,6 +374,12 @@ def _segment(builder: _Builder, index: int, node: ast.Segment) -> SymbolicSegmen
                 span=shape.peak_at.span,
                 hint="put the peak strictly inside the segment",
             )
+        if min(m - start, end - m) < MIN_SEGMENT:
+            raise ScheduleError(
+                f"the peak of {label} at {percent(m)} is too close to the segment's end",
+                span=shape.peak_at.span,
+                hint="progress t is a 32-bit float; keep the peak at least 1e-5% of the run inside the segment",
+            )
         if shape.width is None:
             w = (end - start) / 4
         else:
@@ -363,6 +389,13 @@ def _segment(builder: _Builder, index: int, node: ast.Segment) -> SymbolicSegmen
                     f"the width of {label} must be positive, not {number_text(w)}",
                     span=shape.width.span,
                     hint="the width is a fraction of the run, e.g. `width 15%`",
+                )
+            if not MIN_BELL_WIDTH <= w <= MAX_BELL_WIDTH:
+                raise ScheduleError(
+                    f"the width of {label} is {number_text(w)}, outside 1e-30 .. 1e30",
+                    span=shape.width.span,
+                    hint="the width is a fraction of the run, e.g. `width 15%`; far narrower is a spike no "
+                    "phase sees, far wider is the same as a parabola",
                 )
         pieces = (
             Piece(bell_half(a, p, m, w, start), start, m, "bell to peak"),
@@ -414,7 +447,23 @@ def compile_program(program: ast.Program) -> SymbolicProgram:
             span=Span(1, 1),
             hint="add segments covering 0%..100%, e.g. `0% .. 90%: linear 1.5 -> 1` and `90% .. 100%: tail`",
         )
+    if len(program.segments) > MAX_SEGMENTS:
+        raise ScheduleError(
+            f"the schedule has {len(program.segments)} segments, more than {MAX_SEGMENTS}",
+            span=program.segments[MAX_SEGMENTS].span,
+            hint=f"a schedule has at most {MAX_SEGMENTS} segments; for many values use "
+            "`random LOW .. HIGH every STEP`, or an `expr` segment",
+        )
     segments = tuple(_segment(builder, i, s) for i, s in enumerate(program.segments))
+    draws = 0
+    for segment in segments:
+        draws += segment.random.count if segment.random is not None else 0
+        if draws > MAX_RANDOM_DRAWS:
+            raise ScheduleError(
+                f"the random segments need {draws} draws or more, more than {MAX_RANDOM_DRAWS} in all",
+                span=segment.span,
+                hint="use coarser resolutions (`every 1%`) or fewer random segments",
+            )
     bounds = None
     if program.bounds is not None:
         low = builder.constant(program.bounds.low, what="the lower bound")

@@ -5,11 +5,12 @@ from __future__ import annotations
 import difflib
 import re
 import sys
+import unicodedata
 from fractions import Fraction
 from functools import lru_cache
 from typing import Any
 
-from lark import Lark, Token, Transformer, v_args
+from lark import Lark, Token, Transformer, Tree, v_args
 from lark.exceptions import (
     UnexpectedCharacters,
     UnexpectedEOF,
@@ -24,6 +25,8 @@ from smol_dsl.resources import grammar_path
 
 MAX_SOURCE_CHARS = 1_000_000
 MAX_EXPONENT_DIGITS = 400  # literals beyond 1e±400 are out of float64 range anyway
+MAX_NESTING = 100
+"""Deepest expression: brackets, calls, and every operator of a chain (`a + b + c` is 2) count."""
 SEGMENT_KINDS = ("constant", "linear", "bell", "random", "expr", "tail")
 
 # Hints for common mistakes, found by Lark's example matching: each hint lists a few
@@ -329,7 +332,9 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
         char = text[error.pos_in_stream] if error.pos_in_stream < len(text) else "?"
         message = f"unexpected character {char!r}"
         hint = example
-        if char == "^":
+        if not char.isascii() and char.isprintable():
+            hint = _non_ascii_hint(char)
+        elif char == "^":
             hint = "powers are written with `**`, e.g. `t**2`"
         elif char in "[]{}":
             hint = "group with round brackets `( )`"
@@ -363,6 +368,36 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
         hint = example or f"expected {_expected_in_words(set(error.expected))}"
         return ScheduleError("unexpected end of file", span=Span(line, column), hint=hint)
     return ScheduleError(str(error), span=Span(line, column))
+
+
+_LOOKALIKES = {"−": "-", "–": "-", "—": "-", "×": "*", "·": "*", "÷": "/", "…": "..", "“": '"', "”": '"'}
+
+
+def _non_ascii_hint(char: str) -> str:
+    name = unicodedata.name(char, f"U+{ord(char):04X}")
+    what = f"{char!r} is {name} (U+{ord(char):04X})"
+    if unicodedata.category(char) == "Nd" or char.isdigit():
+        return f"{what}: numbers are written with the ASCII digits 0-9 only"
+    if char in _LOOKALIKES:
+        return f"{what}: write the ASCII `{_LOOKALIKES[char]}`"
+    return f"{what}: outside strings and comments a .sched file is ASCII"
+
+
+def _check_nesting(tree: Tree) -> None:
+    """Refuse expressions nested deeper than MAX_NESTING, before anything recursive sees them."""
+    stack: list[tuple[Any, int]] = [(tree, 0)]
+    while stack:
+        node, depth = stack.pop()
+        if not isinstance(node, Tree):
+            continue
+        if depth > MAX_NESTING:
+            raise ScheduleError(
+                f"expression nested too deeply (more than {MAX_NESTING} levels)",
+                span=_span_of_meta(node.meta),
+                hint="brackets, function calls and each operator of a chain count as a level; "
+                "split the expression with `let` constants",
+            )
+        stack.extend((child, depth + 1) for child in node.children)
 
 
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
@@ -402,6 +437,13 @@ def parse_program(text: str) -> ast.Program:
         tree = _parser().parse(text)
     except UnexpectedInput as error:
         raise _syntax_error(error, text) from None
+    except RecursionError:
+        raise ScheduleError(
+            "expression nested too deeply",
+            span=Span(1, 1),
+            hint="split it with `let` constants",
+        ) from None
+    _check_nesting(tree)
     try:
         return _ToAst().transform(tree)
     except VisitError as error:

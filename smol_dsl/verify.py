@@ -5,6 +5,10 @@ from critical points (`sympy.calculus.util.minimum`/`maximum`), monotonicity fro
 of the derivative, reality from the domains of roots, logarithms and divisions. Where sympy
 cannot find critical points, a rigorous enclosure by interval arithmetic is used instead
 and the certificate says so (see `smol_dsl.bounds`). Nothing is sampled.
+
+The certificate also covers the float32 program that evaluates alpha: every `expr` segment's
+sub-expressions are proven to stay in float32's range, with an error bound
+(`smol_dsl.float32`), and alpha minus that error stays positive.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from typing import Any, Literal
 import sympy as sp
 
 from smol_dsl.bounds import (
+    ENCLOSURE_SECONDS,
     Monotone,
     VerificationTimeoutError,
     domain_violation,
@@ -25,13 +30,16 @@ from smol_dsl.bounds import (
     real,
     simplified,
     slope_sign,
+    time_limit,
 )
 from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.float32 import SAFE_MAX, SAFE_MIN, UNIT, Float32RangeError, float32_error
 from smol_dsl.symbolic import Piece, SymbolicProgram, SymbolicSegment, T, number_text, percent
 
 MIN_TAIL = sp.Rational(1, 10)
 """The last 10% of the run must be at alpha = 1 (the paper's fair-comparison rule)."""
-FLOAT32_MAX = 3.4028234663852886e38
+BUILT_IN_ULPS = {"constant": 1, "tail": 0, "linear": 4, "random": 4, "bell": 32}
+"""float32 error of the built-in shapes, in units of roundoff of their largest value."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +54,7 @@ class PieceCertificate:
     maximum: float
     monotone: Monotone
     exact: bool  # False when extrema come from an interval enclosure
+    float32_error: float = 0.0  # |float32 alpha - exact alpha| <= this, everywhere on the piece
 
 
 @dataclass(frozen=True)
@@ -68,6 +77,7 @@ class Certificate:
     pieces: tuple[PieceCertificate, ...]
     bounds: tuple[float, float] | None
     extinction: float
+    float32_error: float = 0.0
 
     @property
     def tail_fraction(self) -> float:
@@ -103,6 +113,7 @@ class Certificate:
                     words.append(f"{percent(j.position)} jump {j.jump:+.6g}")
             lines.append("  joins: " + ", ".join(words))
         lines.append(f"  extinction: {self.extinction:g}")
+        lines.append(f"  float32: every value finite, alpha within {self.float32_error:.2g} of exact and > 0: proven")
         return "\n".join(lines)
 
 
@@ -202,6 +213,7 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
             high,
             "constant" if low == high else "random",
             True,
+            _built_in_error("random", low, high),
         )
     if segment.bell is not None:
         # Each half of a bell is a + (p - a) * (G(t) - G(s)) / (1 - G(s)) with G monotone on
@@ -217,7 +229,15 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
         else:
             monotone = "increasing" if (real(bell.peak) > real(edge)) == rising else "decreasing"
         return PieceCertificate(
-            segment.index + 1, kind, float(piece.start), float(piece.end), low, high, monotone, True
+            segment.index + 1,
+            kind,
+            float(piece.start),
+            float(piece.end),
+            low,
+            high,
+            monotone,
+            True,
+            _built_in_error("bell", low, high),
         )
     try:
         violation = domain_violation(piece.expr, piece.start, piece.end)
@@ -245,9 +265,56 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
             segment.span,
             "check for a division by zero, or a log or square root of a negative number, inside the segment",
         )
+    if segment.kind == "expr":
+        error = _float32_error(segment, piece, where)
+    else:
+        error = _built_in_error(segment.kind, found.low, found.high)
     return PieceCertificate(
-        segment.index + 1, kind, float(piece.start), float(piece.end), found.low, found.high, monotone, found.exact
+        segment.index + 1,
+        kind,
+        float(piece.start),
+        float(piece.end),
+        found.low,
+        found.high,
+        monotone,
+        found.exact,
+        error,
     )
+
+
+def _built_in_error(kind: str, low: float, high: float) -> float:
+    return BUILT_IN_ULPS.get(kind, 4) * UNIT * max(abs(low), abs(high))
+
+
+def _float32_error(segment: SymbolicSegment, piece: Piece, where: str) -> float:
+    """The float32 error bound of an `expr` piece, or a located error naming the part that fails."""
+    try:
+        with time_limit(ENCLOSURE_SECONDS):
+            return float32_error(piece.expr, piece.start, piece.end)
+    except Float32RangeError as failure:
+        part = _short(failure.node)
+        low, high = failure.where
+        at = "" if not failure.node.has(T) else f" for t in {low:.4g} .. {high:.4g}"
+        raise _fail(
+            f"{where} cannot be evaluated safely in float32: `{part}` {failure.reason}{at}",
+            segment.span,
+            "alpha is computed in 32-bit floats (JAX's default): keep every part of the expression between "
+            "about 1e-36 and 1e36 in size, and divisors and logarithm arguments well away from 0 "
+            "(e.g. rescale `(1e20*t)**2 / 1e40` as `t**2`)",
+        ) from None
+    except VerificationTimeoutError:
+        raise _fail(
+            f"could not bound the float32 evaluation of {where} within the time limit",
+            segment.span,
+            "simplify the expression or split the segment",
+        ) from None
+
+
+def _short(node: sp.Expr) -> str:
+    text = str(node)
+    if len(text) > 40 or any(len(word) > 12 for word in text.replace("*", " ").split()):
+        text = str(sp.N(node, 4))
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: list[PieceCertificate]) -> None:
@@ -267,14 +334,32 @@ def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: lis
             "simplify the expression or split the segment"
         )
     )
+    error = max(p.float32_error for p in pieces)
+    if low > 0 and not low - error > 0:
+        raise _fail(
+            f"alpha must stay above 0, but in float32 {where} may go down to {low - error:.3g} "
+            f"(exactly it goes down to {low:.6g}, with rounding errors up to {error:.3g})",
+            segment.span,
+            "the expression loses too much precision in 32-bit floats: simplify it or rescale its parts",
+        )
+    if low > 0 and low < SAFE_MIN:
+        raise _fail(
+            f"{where} {goes_down} alpha = {low:.3g}, too small for float32",
+            segment.span,
+            "alpha scales the actuators' gear; a value this small is 0 in 32-bit floats",
+        )
     if not low > 0:
         raise _fail(
             f"alpha must stay above 0, but {where} {goes_down} {low:.6g}",
             segment.span,
             "alpha scales the actuators' gear; 0 or less would switch them off or reverse them" + loose,
         )
-    if high > FLOAT32_MAX:
-        raise _fail(f"{where} {reaches} alpha = {high:.3g}, beyond float32", segment.span, "use a modest alpha")
+    if high + error > SAFE_MAX:
+        raise _fail(
+            f"{where} {reaches} alpha = {high:.3g}, beyond float32's safe range (2**120, about 1.3e36)",
+            segment.span,
+            "use a modest alpha",
+        )
     if program.bounds is not None:
         lo, hi, _ = program.bounds
         lo_f, hi_f = float(lo), float(hi)
@@ -347,4 +432,5 @@ def verify(program: SymbolicProgram) -> Certificate:
         pieces=tuple(pieces),
         bounds=bounds,
         extinction=float(program.extinction),
+        float32_error=max(p.float32_error for p in pieces),
     )
