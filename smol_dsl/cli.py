@@ -54,6 +54,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _plot_seed(text: str) -> int:
+    """plot --seed: a seed as `run --seed` takes it, 0 to 2**32 - 1 (smol_dsl.seeds)."""
+    from smol_dsl.seeds import check_seed
+
+    try:
+        return check_seed(_int(text), "")
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error).strip()) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     from smol_dsl import __version__
 
@@ -95,7 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="output file; .png, .svg or .pdf (default: NAME.png for one schedule, schedules.png for several)",
     )
     plot.add_argument("--phases", type=_positive_int, default=100, metavar="N", help="number of phases (default 100)")
-    plot.add_argument("--seed", type=_int, default=0, metavar="S", help="seed of random segments (default 0)")
+    plot.add_argument(
+        "--seed", type=_plot_seed, default=0, metavar="S", help="seed of random segments, 0 to 2**32-1 (default 0)"
+    )
     run = commands.add_parser(
         "run",
         help="train locomotion controllers with MAP-Elites under a schedule",
@@ -168,6 +180,12 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("dirs", nargs="+", metavar="DIR", help="sweep or run directories")
     report.add_argument("-o", "--out", metavar="OUT", help="output directory (default DIR/report for one DIR)")
     report.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the report already in the output directory (without it, an earlier report is kept "
+        "and nothing is written)",
+    )
+    report.add_argument(
         "--metric",
         default=None,
         metavar="NAME",
@@ -228,6 +246,8 @@ def _plot(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot write {out}: the format is chosen by the suffix, one of {', '.join(FIGURE_FORMATS)}")
     if not out.parent.is_dir():
         raise UsageError(f"cannot write {out}: no such directory {out.parent}")
+    if out.is_dir():
+        raise UsageError(f"cannot write {out}: it is a directory; give -o a file name, such as {out / 'schedules.png'}")
     schedules, errors = _load_all(names)
     if errors:
         for error in errors:
@@ -245,10 +265,11 @@ def _plot(args: argparse.Namespace) -> int:
 
     figure = schedule_figure(schedules, num_phases=args.phases, key=jax.random.key(args.seed))
     try:
-        save_figure(figure, out)
+        save_figure(figure, out)  # atomically: a failure leaves no half-written file
     except OSError as error:
-        raise UsageError(f"cannot write {out}: {error.strerror}") from None
-    print(f"wrote {out} ({', '.join(s.name for s in schedules)}; {args.phases} phases)")
+        raise UsageError(f"cannot write {out}: {error.strerror or error}") from None
+    shown = ", ".join(s.name for s in schedules) if len(schedules) <= 8 else f"{len(schedules)} schedules"
+    print(f"wrote {out} ({shown}; {args.phases} phases)")
     return EXIT_OK
 
 
@@ -453,17 +474,16 @@ def _checked_part(index: int, count: int) -> tuple[int, int]:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from smol_dsl.report import METRICS, ReportError, write_report
+    from smol_dsl.report import METRICS, write_report
 
     if args.metric is not None and args.metric not in METRICS:
         raise UsageError(f"unknown metric {args.metric!r}; the metrics are {', '.join(METRICS)}")
     if args.out is None and len(args.dirs) > 1:
         raise UsageError("with several DIRs, say where the report goes with -o OUT")
-    out = Path(args.out) if args.out else Path(args.dirs[0]) / "report"
-    try:
-        report = write_report(args.dirs, out, args.metric)
-    except ReportError as error:
-        raise UsageError(str(error)) from None
+    if args.out is not None and not args.out.strip():
+        raise UsageError("-o: empty path; give the directory the report goes into (or leave -o out for DIR/report)")
+    out = Path(args.out) if args.out is not None else Path(args.dirs[0]) / "report"
+    report = write_report(args.dirs, out, args.metric, force=args.force)  # a ReportError is a usage error
     table = report.table
     print(f"{table.task}, final {table.metric} ({sum(table.runs.values())} runs):\n")
     print(table.markdown())
