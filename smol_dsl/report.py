@@ -13,6 +13,7 @@ report is replaced only with `force=True` (`--force`).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
@@ -21,7 +22,7 @@ import math
 import os
 import warnings
 import zipfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -125,7 +126,11 @@ class RunRecord:
     def alpha_one_evaluations(self) -> float | None:
         """Training evaluations when alpha becomes 1 for good (the first tail phase starts)."""
         phases = self.config.num_phases
-        first_tail = next(k for k in range(phases + 1) if k == phases or k / phases >= self.tail_start)
+        first_tail = min(math.ceil(self.tail_start * phases), phases)  # the first k with k / phases >= tail
+        while first_tail > 0 and (first_tail - 1) / phases >= self.tail_start:
+            first_tail -= 1  # rounding
+        while first_tail < phases and first_tail / phases < self.tail_start:
+            first_tail += 1
         return alpha_one_evaluations(self.rows, first_tail)
 
 
@@ -247,6 +252,11 @@ def read_config(path: Path) -> RunConfig:
     if config.generations < 1:
         raise ReportError(
             f"{path}: {config.evaluations} evaluations in batches of {config.batch_size} make no generation; {fix}"
+        )
+    if config.generations < config.num_phases:
+        raise ReportError(
+            f"{path}: {config.num_phases} phases but only {config.generations} generations; the runner refuses "
+            f"such settings, so smol-dsl did not write this file; {fix}"
         )
     return config
 
@@ -408,8 +418,8 @@ def _check_order(
 def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
     """A finished run's archive.npz, checked: it loads, holds every array with the shapes the
     run's config gives (C cells, D descriptors, a policy per cell), and its values agree
-    (fitness finite or -inf for an empty cell, `filled` where it is finite). The policies
-    are checked by their shapes only, not read."""
+    (fitness finite or -inf for an empty cell, `filled` where it is finite). Shapes are read
+    from the arrays' headers first; the policies are checked by their shapes only, not read."""
     from smol_dsl.tasks import descriptor_bounds
 
     path = Path(directory) / "archive.npz"
@@ -420,43 +430,41 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
             f"its final archive; resume it with `smol-dsl run ... --resume` (or `sweep ... --resume`), which "
             f"writes it, {_leave_out(directory)}"
         )
-    try:
-        with zipfile.ZipFile(path) as bundle:
-            shapes = {
-                name.removesuffix(".npy"): _npy_shape(bundle, name)
-                for name in bundle.namelist()
-                if name.startswith("genotypes/") and name.endswith(".npy")
-            }
-        with np.load(path, allow_pickle=False) as data:
-            missing = [name for name in ARCHIVE_ARRAYS if name not in data.files]
-            arrays = {name: np.asarray(data[name]) for name in ARCHIVE_ARRAYS if name in data.files}
-    except OSError as error:
-        raise ReportError(
-            f"{path}: cannot be read ({error.strerror or error}); check its permissions, {_leave_out(directory)}"
-        ) from None
-    except Exception as error:  # zipfile.BadZipFile, EOFError, ValueError...: a file cut short or damaged
-        raise ReportError(
-            f"{path}: not a readable archive ({type(error).__name__}: {error}); it is damaged or cut short "
-            f"(a full disk, or an unfinished copy): {again}"
-        ) from None
-    if missing or not shapes:
-        lacking = missing + ([] if shapes else ["genotypes/..."])
-        raise ReportError(f"{path}: lacks the array(s) {', '.join(lacking)}; {again}")
     cells = config.num_centroids
     size = len(descriptor_bounds(config.task)[0])
     expected = {"fitnesses": (cells,), "descriptors": (cells, size), "centroids": (cells, size), "filled": (cells,)}
-    for name, shape in expected.items():
-        array = arrays[name]
+
+    def check(name: str, shape: tuple[int, ...], dtype: np.dtype) -> None:
+        if name.startswith("genotypes/"):
+            if shape[:1] != (cells,):
+                raise ReportError(f"{path}: {name} has shape {shape}, not one policy per cell ({cells}, ...); {again}")
+            return
         kind = np.bool_ if name == "filled" else np.floating
-        if array.shape != shape or not np.issubdtype(array.dtype, kind):
+        if shape != expected[name] or not np.issubdtype(dtype, kind):
             raise ReportError(
-                f"{path}: {name} is a {array.dtype} array of shape {array.shape}, but config.json ({cells} cells, "
+                f"{path}: {name} is a {dtype} array of shape {shape}, but config.json ({cells} cells, "
                 f"{config.task}'s {size} descriptors) gives {'bool' if name == 'filled' else 'float'} of shape "
-                f"{shape}; {again}"
+                f"{expected[name]}; {again}"
             )
-    for name, shape in shapes.items():
-        if shape is not None and shape[:1] != (cells,):
-            raise ReportError(f"{path}: {name} has shape {shape}, not one policy per cell ({cells},...); {again}")
+
+    with _reading_archive(path, again):
+        with zipfile.ZipFile(path) as bundle:
+            headers = {
+                name.removesuffix(".npy"): _npy_header(bundle, name)
+                for name in bundle.namelist()
+                if name.endswith(".npy")
+            }
+    lacking = [name for name in ARCHIVE_ARRAYS if name not in headers]
+    lacking += [] if any(name.startswith("genotypes/") for name in headers) else ["genotypes/..."]
+    if lacking:
+        raise ReportError(f"{path}: lacks the array(s) {', '.join(lacking)}; {again}")
+    for name, header in headers.items():
+        if header is not None and (name in expected or name.startswith("genotypes/")):
+            check(name, *header)  # before reading anything: a damaged header may claim any size
+    with _reading_archive(path, again), np.load(path, allow_pickle=False) as data:
+        arrays = {name: np.asarray(data[name]) for name in ARCHIVE_ARRAYS}
+    for name, array in arrays.items():
+        check(name, array.shape, array.dtype)
     fitnesses, filled = arrays["fitnesses"], arrays["filled"]
     if np.isnan(fitnesses).any() or (fitnesses == np.inf).any():
         raise ReportError(f"{path}: a fitness is NaN or +inf; {again}")
@@ -467,16 +475,34 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
     return FinalArchive(**arrays)
 
 
-def _npy_shape(bundle: zipfile.ZipFile, name: str) -> tuple[int, ...] | None:
-    """The shape in an .npy member's header, without reading its data (None: a header
-    version this check does not read)."""
+@contextlib.contextmanager
+def _reading_archive(path: Path, again: str) -> Iterator[None]:
+    """Turn what reading a damaged or unreadable archive raises into a ReportError."""
+    try:
+        yield
+    except OSError as error:
+        raise ReportError(
+            f"{path}: cannot be read ({error.strerror or error}); check its permissions, {_leave_out(path.parent)}"
+        ) from None
+    except Exception as error:  # zipfile.BadZipFile, EOFError, ValueError...: a file cut short or damaged
+        raise ReportError(
+            f"{path}: not a readable archive ({type(error).__name__}: {error}); it is damaged or cut short "
+            f"(a full disk, or an unfinished copy): {again}"
+        ) from None
+
+
+def _npy_header(bundle: zipfile.ZipFile, name: str) -> tuple[tuple[int, ...], np.dtype] | None:
+    """The shape and dtype in an .npy member's header, without reading its data (None: a
+    header version this does not read; the array is checked once loaded)."""
     with bundle.open(name) as member:
         version = np.lib.format.read_magic(member)
         if version == (1, 0):
-            return np.lib.format.read_array_header_1_0(member)[0]
-        if version == (2, 0):
-            return np.lib.format.read_array_header_2_0(member)[0]
-        return None
+            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+        else:
+            return None
+        return shape, dtype
 
 
 def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
@@ -602,11 +628,11 @@ class PValueTable:
         return {name for name in self.rows if self.medians[name] == top}
 
     def markdown(self) -> str:
-        header = ["schedule", "runs", "median score", *(f"p: {c} better" for c in self.columns)]
+        header = ["schedule", "runs", "median score", *(f"p: {_markdown_escape(c)} better" for c in self.columns)]
         lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
         for row in self.rows:
             median = _number(self.medians[row])
-            cells = [row, str(self.runs[row]), f"**{median}**" if row in self.best else median]
+            cells = [_markdown_escape(row), str(self.runs[row]), f"**{median}**" if row in self.best else median]
             for column in self.columns:
                 p = self.pvalues[row][column]
                 cells.append("-" if p is None else (f"**{p:.3e}**" if p < SIGNIFICANCE else f"{p:.3e}"))
@@ -642,10 +668,22 @@ def _number(value: float) -> str:
     return f"{value:.1f}"
 
 
+def _markdown_escape(text: str) -> str:
+    """A name as one table cell: a | would start another cell, a line break another row."""
+    return "".join(char if char.isprintable() else " " for char in text).replace("|", "\\|")
+
+
+LATEX_SPECIAL = {
+    **{char: "\\" + char for char in "&%$#_{}"},
+    "\\": "\\textbackslash{}",
+    "^": "\\textasciicircum{}",
+    "~": "\\textasciitilde{}",
+}
+
+
 def _latex_escape(text: str) -> str:
-    for char in "\\&%$#_{}":
-        text = text.replace(char, "\\" + char)
-    return text
+    """A name as LaTeX text: its special characters escaped, control characters as spaces."""
+    return "".join(LATEX_SPECIAL.get(char, char if char.isprintable() else " ") for char in text)
 
 
 def pvalue_table(groups: dict[str, list[RunRecord]], metric: str | None = None) -> PValueTable:

@@ -9,9 +9,11 @@ and copied into tmp_path before each test damages them.
 from __future__ import annotations
 
 import errno
+import io
 import json
 import shutil
 import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -155,6 +157,7 @@ def test_a_run_that_did_not_finish_is_refused(runs, tmp_path, capsys):
         ("config.json", lambda c: {**c, "task": "hopper"}, "unknown task 'hopper'"),
         ("config.json", lambda c: {**c, "num_phases": 0}, "num_phases is 0"),
         ("config.json", lambda c: {**c, "colour": "blue"}, "unknown setting(s) colour"),
+        ("config.json", lambda c: {**c, "num_phases": 10**15}, "1000000000000000 phases but only 12 generations"),
         ("certificate.json", None, "missing"),
         ("certificate.json", '{"name": "SMOL"}', "tail_start"),
         ("schedule.sched", None, "missing"),
@@ -182,6 +185,18 @@ def test_archive_of_the_wrong_shape_or_values_is_refused(runs, pristine, tmp_pat
     arrays["filled"] = np.zeros(32, dtype=bool)
     np.savez(path, **arrays)
     refused(["report", str(runs), "-o", str(tmp_path / "out")], capsys, path, "NaN")
+
+
+def test_archive_header_claiming_a_huge_array_is_refused_before_reading_it(runs, tmp_path, capsys):
+    path = runs / "walker2d-smol-seed2" / "archive.npz"
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files if name != "fitnesses"}
+    np.savez(path, **arrays)
+    claim = io.BytesIO()
+    np.lib.format.write_array_header_1_0(claim, {"descr": "<f8", "fortran_order": False, "shape": (10**12,)})
+    with zipfile.ZipFile(path, "a") as bundle:
+        bundle.writestr("fitnesses.npy", claim.getvalue() + b"\0" * 64)
+    refused(["report", str(runs), "-o", str(tmp_path / "out")], capsys, path, "(1000000000000,)")
 
 
 def test_unreadable_files_are_refused(runs, tmp_path, capsys):
@@ -350,6 +365,24 @@ def test_report_of_many_schedules_without_warnings(tmp_path, capsys):
     assert set(REPORT_FILES) - {"ablation-results.png", "ablation-results.pdf"} == {
         p.name for p in (tmp_path / "out").iterdir()
     }
+
+
+def test_names_with_table_and_latex_characters(tmp_path, capsys):
+    schedules = {}
+    for key, name in (("pipe", "a|b"), ("tex", "x\\y^2~_{z}")):
+        path = tmp_path / f"{key}.sched"
+        path.write_text(f'name "{name}"\n0% .. 90%: constant 1.2\n90% .. 100%: tail\n')
+        schedules[key] = smol_dsl.load(path)
+    for key in schedules:
+        for seed in (0, 1):
+            write_run(tmp_path / "runs" / f"{key}-{seed}", schedules, key, seed, {"max_fitness": float(seed)})
+    assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out")]) == 0
+    markdown = (tmp_path / "out" / "table.md").read_text().splitlines()
+    rows = [line for line in markdown if line.startswith("| ") and "---" not in line]
+    assert all(line.count(" | ") == rows[0].count(" | ") for line in rows)  # one cell per column
+    assert any(line.startswith("| a\\|b |") for line in rows)
+    latex = (tmp_path / "out" / "pvalues.tex").read_text()
+    assert "x\\textbackslash{}y\\textasciicircum{}2\\textasciitilde{}\\_\\{z\\}" in latex
 
 
 def test_names_with_dollar_signs_are_drawn_literally(tmp_path, capsys):
