@@ -458,9 +458,10 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
     lacking += [] if any(name.startswith("genotypes/") for name in headers) else ["genotypes/..."]
     if lacking:
         raise ReportError(f"{path}: lacks the array(s) {', '.join(lacking)}; {again}")
-    for name, header in headers.items():
-        if header is not None and (name in expected or name.startswith("genotypes/")):
-            check(name, *header)  # before reading anything: a damaged header may claim any size
+    policies = [name for name in headers if name.startswith("genotypes/")]
+    for name in [*ARCHIVE_ARRAYS, *policies]:  # before reading anything: a damaged header may claim any size
+        if headers[name] is not None:
+            check(name, *headers[name])
     with _reading_archive(path, again), np.load(path, allow_pickle=False) as data:
         arrays = {name: np.asarray(data[name]) for name in ARCHIVE_ARRAYS}
     for name, array in arrays.items():
