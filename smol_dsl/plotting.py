@@ -116,7 +116,7 @@ def schedule_figure(
     return figure
 
 
-def save_figure(figure: Figure, out: str | Path) -> Path:
+def save_figure(figure: Figure, out: str | Path, *, dpi: int = 150) -> Path:
     """Save to PNG, SVG or PDF by the file's suffix, atomically: the figure is drawn into a
     temporary file beside `out` and renamed over it, so `out` is never left half-written."""
     path = Path(out)
@@ -126,7 +126,7 @@ def save_figure(figure: Figure, out: str | Path) -> Path:
         )
     temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        figure.savefig(temporary, dpi=150, format=path.suffix.lower()[1:])
+        figure.savefig(temporary, dpi=dpi, format=path.suffix.lower()[1:])
         os.replace(temporary, path)
     finally:
         temporary.unlink(missing_ok=True)

@@ -98,8 +98,11 @@ def archive_figure(repertoire: Any, task: Task, title: str, *, pixels: int = 400
 def save_run_figures(
     directory: Path, rows: list[dict[str, Any]], repertoire: Any, task: Task, config: RunConfig, schedule: Schedule
 ) -> None:
-    """metrics.png and archive.png in the run directory."""
-    title = f"{task.name} - {schedule.name} - seed {config.seed}"
-    metrics_figure(rows, config, schedule, title).savefig(directory / "metrics.png", dpi=120)
+    """metrics.png and archive.png in the run directory, each written atomically (a run
+    killed meanwhile leaves no half-written image)."""
+    from smol_dsl.plotting import legend_label, save_figure
+
+    title = f"{task.name} - {legend_label(schedule.name)} - seed {config.seed}"
+    save_figure(metrics_figure(rows, config, schedule, title), directory / "metrics.png", dpi=120)
     if task.descriptor_size == 2:
-        archive_figure(repertoire, task, title).savefig(directory / "archive.png", dpi=120)
+        save_figure(archive_figure(repertoire, task, title), directory / "archive.png", dpi=120)
