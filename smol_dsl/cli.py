@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from smol_dsl.errors import UserInputError
+from smol_dsl.seeds import check_seed
 
 if TYPE_CHECKING:
     from smol_dsl.runner import RunConfig
@@ -120,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("task", metavar="TASK", help="walker2d, halfcheetah or ant_omni")
     run.add_argument("schedule", metavar="SCHEDULE", help="a .sched path or a bundled name")
     _add_run_options(run)
-    run.add_argument("--seed", type=_int, default=None, metavar="S", help="random seed (default 0)")
+    run.add_argument("--seed", type=_int, default=None, metavar="S", help="random seed, from 0 to 2**32-1 (default 0)")
     run.add_argument("--out", metavar="DIR", help="run directory (default runs/TASK-SCHEDULE-seedS)")
     run.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -136,7 +137,9 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("task", metavar="TASK", help="walker2d, halfcheetah or ant_omni")
     sweep.add_argument("schedules", nargs="+", metavar="SCHEDULE", help="a .sched path or a bundled name")
     sweep.add_argument("--seeds", type=_positive_int, default=5, metavar="N", help="seeds per schedule (default 5)")
-    sweep.add_argument("--first-seed", type=_int, default=0, metavar="S", help="seeds are S..S+N-1 (default 0)")
+    sweep.add_argument(
+        "--first-seed", type=_int, default=0, metavar="S", help="seeds are S..S+N-1, from 0 to 2**32-1 (default 0)"
+    )
     _add_run_options(sweep)
     sweep.add_argument("--out", metavar="DIR", help="sweep directory (default runs/TASK-sweep)")
     sweep.add_argument("--resume", action="store_true", help="continue the sweep in --out from its last checkpoint")
@@ -296,6 +299,9 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.task not in TASK_NAMES:
         raise UsageError(f"unknown task {args.task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    _check_out(args.out)
+    if args.seed is not None:
+        check_seed(args.seed, "--seed")
     try:
         schedule = load(args.schedule)
     except ScheduleError as error:
@@ -311,7 +317,7 @@ def _run(args: argparse.Namespace) -> int:
         check_config(config, schedule)
     except ValueError as error:
         raise UsageError(str(error)) from None
-    out = Path(args.out) if args.out else Path("runs") / run_name(args.task, schedule, config.seed)
+    out = Path(args.out) if args.out is not None else Path("runs") / run_name(args.task, schedule, config.seed)
     print(
         f"smol-dsl run: {args.task} under {schedule.name} ({args.schedule}), preset {config.preset}: "
         f"{config.evaluations} evaluations in batches of {config.batch_size}, {config.num_phases} phases, "
@@ -362,6 +368,8 @@ def _sweep(args: argparse.Namespace) -> int:
 
     if args.task not in TASK_NAMES:
         raise UsageError(f"unknown task {args.task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    _check_out(args.out)
+    _check_seeds(args.first_seed, args.seeds)
     schedules, errors = _load_all(args.schedules)
     if errors:
         for error in errors:
@@ -386,7 +394,7 @@ def _sweep(args: argparse.Namespace) -> int:
             raise UsageError(f"--devices {args.devices}: this machine has {len(devices)} ({devices[0].platform})")
         devices = devices[: args.devices]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    out = Path(args.out) if args.out else Path("runs") / f"{args.task}-sweep"
+    out = Path(args.out) if args.out is not None else Path("runs") / f"{args.task}-sweep"
     runs = len(range(part[0], len(schedules) * len(seeds), part[1]))
     share = f" (process {part[0]} of {part[1]}: {runs} of them)" if part[1] > 1 else ""
     print(
@@ -420,6 +428,25 @@ def _sweep(args: argparse.Namespace) -> int:
     )
     print(sweep_summary(results, out))
     return EXIT_OK
+
+
+def _check_out(out: str | None) -> None:
+    """Refuse `--out ""`, which would otherwise mean the current directory."""
+    if out is not None and not out.strip():
+        raise UsageError("--out: empty path; give the directory to write to (or leave --out out for the default)")
+
+
+def _check_seeds(first: int, count: int) -> None:
+    """--first-seed and every seed up to --first-seed + --seeds - 1 must give distinct runs."""
+    from smol_dsl.seeds import SEED_MAX
+
+    check_seed(first, "--first-seed")
+    last = first + count - 1
+    if last > SEED_MAX:
+        raise UsageError(
+            f"--first-seed {first} with --seeds {count}: the seeds would run up to {last}, past the largest "
+            f"seed, {SEED_MAX}; use --first-seed {SEED_MAX - count + 1} or less, or fewer --seeds"
+        )
 
 
 LARGE_BYTES = 1e9  # a run or sweep this big on a device gets its footprint printed, whatever the preset

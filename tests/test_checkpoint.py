@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from smol_dsl.runner import checkpoint
+from smol_dsl.runner import RunError, checkpoint
 from smol_dsl.runner.checkpoint import CheckpointWriter, host_copy
 
 
@@ -49,7 +49,7 @@ def test_a_failed_background_write_is_raised_in_the_training_thread(tmp_path, mo
     monkeypatch.setattr(checkpoint, "write_npz", full_disk)
     writer = CheckpointWriter()
     writer.offer(tmp_path / "a.npz", lambda: {"x": np.zeros(3)})
-    with pytest.raises(OSError, match="No space left"):
+    with pytest.raises(RunError, match=f"cannot write {tmp_path / 'a.npz'}: No space left"):  # names the file
         writer.flush()
     writer.flush()  # reported once
 

@@ -7,11 +7,19 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
+from smol_dsl.errors import UserInputError
 from smol_dsl.schedule import Schedule
+from smol_dsl.seeds import check_seed
 from smol_dsl.tasks import TASK_NAMES
 
 ISO_SIGMA = 0.005  # the paper's iso+line variation
 LINE_SIGMA = 0.05
+
+
+class RunError(UserInputError):
+    """A run that cannot start or go on: bad settings, an output directory that would be lost
+    or is in use, a damaged checkpoint, a disk that cannot be written. The message names the
+    file or option and says what to do."""
 
 
 @dataclass(frozen=True)
@@ -34,6 +42,10 @@ class RunConfig:
     line_sigma: float = LINE_SIGMA
     num_init_cvt_samples: int = 50_000
     preset: str = "custom"
+
+    def __post_init__(self) -> None:
+        # only seeds 0 .. 2**32 - 1 give distinct runs (smol_dsl.seeds); a SeedError otherwise
+        object.__setattr__(self, "seed", check_seed(self.seed))
 
     @property
     def generations(self) -> int:
