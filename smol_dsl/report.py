@@ -248,7 +248,9 @@ def read_config(path: Path) -> RunConfig:
     try:
         config = RunConfig(**data)
     except (UserInputError, ValueError) as error:  # a seed outside 0 .. 2**32 - 1, say
-        raise ReportError(f"{path}: {error}; {fix}") from None
+        raise ReportError(
+            f"{path}: {error}; rerun the run with settings the runner accepts, {_leave_out(path.parent)}"
+        ) from None
     if config.generations < 1:
         raise ReportError(
             f"{path}: {config.evaluations} evaluations in batches of {config.batch_size} make no generation; {fix}"
