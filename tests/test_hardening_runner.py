@@ -430,6 +430,19 @@ def test_a_sweep_resumed_after_a_run_directory_was_deleted_sets_it_up_again(libr
     assert (out / every[1].name / "config.json").is_file()
 
 
+def test_a_sweep_resumed_with_another_number_of_processes_is_refused(library, tmp_path):
+    out = tmp_path / "sweep"
+    every = plan_sweep([library["human"]], [0, 1], CONFIG)
+    for part in (0, 1):
+        name = f"sweep-checkpoint-{part}-of-2.npz"
+        _prepare_sweep_directory(out, every, every[part::2], CONFIG, False, True, name).close()
+        (out / name).write_bytes(b"")  # stands for the checkpoint each process wrote
+    with pytest.raises(RunError, match=r"was checkpointed by 2 processes \(--num-processes 2\).*not one process"):
+        _prepare_sweep_directory(out, every, every, CONFIG, True, False, "sweep-checkpoint.npz")
+    (out / "sweep-checkpoint-1-of-2.npz").unlink()  # process 1 was killed before its first checkpoint:
+    _prepare_sweep_directory(out, every, every[1::2], CONFIG, True, True, "sweep-checkpoint-1-of-2.npz").close()
+
+
 # 3. seeds that would repeat another seed's stream ----------------------------------------------
 
 

@@ -254,6 +254,8 @@ def out_path(out_dir: str | Path | None) -> Path | None:
         return None
     if str(out_dir) == "" or (isinstance(out_dir, str) and not out_dir.strip()):
         raise RunError("--out: empty path; give the directory to write the run to (or leave --out out)")
+    if "\0" in str(out_dir):
+        raise RunError(f"--out {str(out_dir)!r}: a path cannot hold a NUL character")
     return Path(out_dir)
 
 
@@ -369,8 +371,12 @@ def check_out_dir(directory: Path) -> None:
 
 
 def non_empty(directory: Path) -> bool:
-    """Whether directory exists and holds anything but its lock file."""
-    return directory.is_dir() and any(path.name != LOCK_FILE for path in directory.iterdir())
+    """Whether directory exists and holds anything but its lock file (False if it cannot be
+    read: creating or locking it then says why)."""
+    try:
+        return directory.is_dir() and any(path.name != LOCK_FILE for path in directory.iterdir())
+    except OSError:
+        return False
 
 
 def make_directory(directory: Path, what: str) -> None:

@@ -377,11 +377,41 @@ def _prepare_sweep_directory(
             again = resume and not (run_directory / "config.json").exists() and not non_empty(run_directory)
             locks.enter_context(prepare_run_directory(run_directory, run.schedule, run.config, resume and not again))
         if resume:
+            _check_process_count(directory, checkpoint_name)
             remove_stale_temporaries(directory, prefix=f"{checkpoint_name}.")
     except BaseException:
         locks.close()
         raise
     return locks
+
+
+_CHECKPOINT_NAME = re.compile(r"sweep-checkpoint(?:-(\d+)-of-(\d+))?\.npz")
+
+
+def _check_process_count(directory: Path, checkpoint_name: str) -> None:
+    """Refuse to resume a sweep with another number of processes than it was checkpointed
+    by: this process's checkpoint would be missing, and its runs would silently start over."""
+    if (directory / checkpoint_name).exists():
+        return
+    ours = _CHECKPOINT_NAME.fullmatch(checkpoint_name)
+    parts = int(ours.group(2)) if ours and ours.group(2) else 1
+    others = sorted(
+        name
+        for name in (path.name for path in directory.iterdir())
+        if (match := _CHECKPOINT_NAME.fullmatch(name)) and int(match.group(2) or 1) != parts
+    )
+    if others:
+        counts = sorted({int(m.group(2) or 1) for m in map(_CHECKPOINT_NAME.fullmatch, others) if m})
+        started = " or ".join(_processes(count) for count in counts)
+        raise RunError(
+            f"{directory} was checkpointed by {started} ({', '.join(others[:3])}{', ...' if len(others) > 3 else ''}), "
+            f"not {_processes(parts)}: resume it with the same --num-processes (or none, for one process); "
+            f"otherwise this process's runs would start over"
+        )
+
+
+def _processes(count: int) -> str:
+    return "one process" if count == 1 else f"{count} processes (--num-processes {count})"
 
 
 def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], directory: Path) -> list[str]:
