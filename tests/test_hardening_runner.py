@@ -248,9 +248,19 @@ def test_full_disk_while_writing_metrics_then_resume_without_metrics(reference, 
     full = FullAfter(run_module.csv.DictWriter)
     full.rows = 8
     monkeypatch.setattr(run_module.csv, "DictWriter", full)
+    locked = []
+
+    def progress(row, total):  # the run holds its directory's lock while it trains
+        if row["generation"] == 3 and not locked:
+            with pytest.raises(RunError, match="in use by another smol-dsl process"):
+                DirectoryLock.acquire(out)
+            locked.append(row)
+
     with pytest.raises(RunError) as caught:
-        run_experiment("walker2d", library["human"], CONFIG, out_dir=out)
+        run_experiment("walker2d", library["human"], CONFIG, out_dir=out, progress=progress)
     monkeypatch.undo()
+    assert locked
+    DirectoryLock.acquire(out).release()  # and releases it when it stops, also on an error
     message = str(caught.value)
     assert f"cannot write {out / 'metrics.csv'}: No space left on device" in message
     assert f"the last checkpoint, {out / 'checkpoint.npz'}, is intact" in message
@@ -346,6 +356,16 @@ def test_resume_with_a_damaged_config_json(reference, tmp_path, capsys, text, pr
     assert f"{out / 'config.json'} is damaged ({problem}" in err and "put back a good copy" in err
 
 
+def test_resume_of_a_sweep_as_a_run_and_of_a_run_as_a_sweep(reference, library, tmp_path, capsys):
+    out = tmp_path / "sweep"
+    every = plan_sweep([library["human"]], [0], CONFIG)
+    _prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
+    code, err = cli([*RUN, "--out", str(out), "--resume"], capsys)
+    assert code == 2 and f"{out} is a sweep directory, not a run's" in err
+    code, err = cli(["sweep", "walker2d", "human", "--seeds", "1", *FLAGS, "--out", str(reference), "--resume"], capsys)
+    assert code == 2 and f"{reference} is a run directory, not a sweep's" in err
+
+
 def test_resume_without_its_schedule_file(reference, tmp_path, capsys):
     out = copy_of(reference, tmp_path)
     (out / "schedule.sched").unlink()
@@ -381,21 +401,6 @@ def test_a_second_process_on_a_run_directory_is_refused(reference, tmp_path, cap
         holder.wait(timeout=60)
     with DirectoryLock.acquire(out) as lock:  # released when its holder exited
         assert lock.held
-
-
-def test_a_run_holds_its_lock_until_it_returns(library, tmp_path, monkeypatch):
-    out = tmp_path / "run"
-    seen = []
-
-    def progress(row, total):
-        if row["generation"] == 3 and not seen:
-            with pytest.raises(RunError, match="in use by another smol-dsl process"):
-                DirectoryLock.acquire(out)
-            seen.append(row)
-
-    run_experiment("walker2d", library["human"], CONFIG, out_dir=out, progress=progress, stop_after_generation=4)
-    assert seen
-    DirectoryLock.acquire(out).release()  # free again
 
 
 def test_a_second_sweep_process_is_refused_but_parts_share_a_sweep(library, tmp_path, capsys):

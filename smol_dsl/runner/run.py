@@ -322,6 +322,11 @@ def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig
 def _resume_run_directory(directory: Path, schedule: Schedule, config: RunConfig) -> DirectoryLock:
     config_path = directory / "config.json"
     if not config_path.is_file():
+        if (directory / "sweep.json").is_file():
+            raise RunError(
+                f"{directory} is a sweep directory, not a run's: resume it with `smol-dsl sweep ... --resume`, "
+                "or resume one of its runs with --out on that run's directory"
+            )
         raise RunError(f"{directory} holds no run to resume (no config.json); start it without --resume")
     lock = lock_directory(directory, "run", resume=True)
     try:

@@ -349,6 +349,10 @@ def _prepare_sweep_directory(
     locks = contextlib.ExitStack()
     try:
         if resume and not sweep_file.is_file():
+            if (directory / "config.json").is_file():
+                raise RunError(
+                    f"{directory} is a run directory, not a sweep's: resume it with `smol-dsl run ... --resume`"
+                )
             raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
         if not resume:
             busy = [d for d in ([directory] if not shared else [directory / r.name for r in runs]) if non_empty(d)]
