@@ -194,10 +194,20 @@ class Schedule:
         import jax
 
         key = _default_key(key)
-        return [
-            None if s.random is None else jax.random.uniform(jax.random.fold_in(key, s.index), (s.random.count,))
-            for s in self.segments
-        ]
+        # Segment j draws uniform(fold_in(key, j), (count,)). Segments with the same count are
+        # drawn together under vmap (the same numbers, one operation per distinct count), so
+        # that a schedule of many random segments compiles quickly.
+        by_count: dict[int, list[int]] = {}
+        for segment in self.segments:
+            if segment.random is not None:
+                by_count.setdefault(segment.random.count, []).append(segment.index)
+        draws: list[jax.Array | None] = [None] * len(self.segments)
+        for count, indices in by_count.items():
+            keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jax.numpy.asarray(indices))
+            drawn = jax.vmap(lambda k, count=count: jax.random.uniform(k, (count,)))(keys)
+            for row, j in enumerate(indices):
+                draws[j] = drawn[row]
+        return draws
 
     # ------------------------------------------------------------------ internals
     def _bin_of(self, t: jax.Array, index: jax.Array) -> jax.Array:

@@ -124,3 +124,7 @@ def check_config(config: RunConfig, schedule: Schedule) -> None:
             f"(from {float(schedule.tail_start):.0%}), so the run would not end on the standard body; "
             f"use --phases {least} or more"
         )
+    # The certificate proves every phase's alpha finite and positive in float32; evaluate the
+    # table anyway before anything is created, so a defect can never waste a run (a
+    # ScheduleError naming the file and the phase).
+    schedule.checked_phase_alphas(config.num_phases)

@@ -179,7 +179,7 @@ def run_experiment(
         centroids = cvt_centroids(
             config.num_centroids, task.descriptor_low, task.descriptor_high, config.num_init_cvt_samples, cvt_key
         )
-        alphas = np.asarray(schedule.phase_alphas(config.num_phases, schedule_key(config.seed)))
+        alphas = schedule.checked_phase_alphas(config.num_phases, schedule_key(config.seed))
 
         state, owner = None, run_owner(config, schedule)
         if directory is not None and resume:

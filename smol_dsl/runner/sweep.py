@@ -193,7 +193,7 @@ def run_sweep(
         starts = {seed: task.start_state(start_key(seed)) for seed in all_centroids}
         starts = engine.put(stack_runs([starts[run.config.seed] for run in padded]))
         alphas = np.stack(
-            [np.asarray(run.schedule.phase_alphas(config.num_phases, schedule_key(run.config.seed))) for run in padded]
+            [run.schedule.checked_phase_alphas(config.num_phases, schedule_key(run.config.seed)) for run in padded]
         )
         extinctions = engine.put(jnp.asarray([r.schedule.extinction for r in padded], dtype=jnp.float32))
         checkpoint = directory / checkpoint_name if directory is not None else None
