@@ -177,7 +177,8 @@ def check_error(error: smol_dsl.ScheduleError, text: str | None, path: str) -> N
 
 
 def check_schedule(schedule: smol_dsl.Schedule) -> None:
-    """A schedule that was accepted evaluates to finite, positive alpha with a tail of exactly 1."""
+    """A schedule that was accepted evaluates to finite, positive alpha (at every phase and on a
+    dense grid of t, in float32) with a tail of exactly 1: no third outcome."""
     cert = schedule.certificate
     assert 0 < cert.minimum <= cert.maximum
     assert schedule.tail_start <= 0.9
@@ -185,6 +186,8 @@ def check_schedule(schedule: smol_dsl.Schedule) -> None:
     assert np.all(np.isfinite(phases)) and np.all(phases > 0), phases
     tail = schedule.tail_phases(20)
     assert tail >= 2 and np.all(phases[20 - tail :] == 1.0), phases
+    dense = np.asarray(schedule.alpha(np.linspace(0.0, 1.0, 4001, dtype=np.float32)))
+    assert np.all(np.isfinite(dense)) and np.all(dense > 0), dense
 
 
 def parse_outcome(text: str, path: str = "fuzz.sched") -> smol_dsl.Schedule | None:
