@@ -310,6 +310,7 @@ def _run(args: argparse.Namespace) -> int:
     from smol_dsl.runner import check_config, run_experiment
     from smol_dsl.runner.footprint import fit_sweep
     from smol_dsl.runner.progress import summary_line
+    from smol_dsl.runner.run import check_out_dir, non_empty
     from smol_dsl.runner.sweep import run_name
 
     config = _config(args, seed=args.seed)
@@ -318,6 +319,9 @@ def _run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise UsageError(str(error)) from None
     out = Path(args.out) if args.out is not None else Path("runs") / run_name(args.task, schedule, config.seed)
+    check_out_dir(out)  # before anything compiles: a file, a device or a path under a file
+    if not args.resume and non_empty(out):
+        raise UsageError(f"{out} already exists and is not empty; use --resume to continue it or another --out")
     print(
         f"smol-dsl run: {args.task} under {schedule.name} ({args.schedule}), preset {config.preset}: "
         f"{config.evaluations} evaluations in batches of {config.batch_size}, {config.num_phases} phases, "
@@ -378,6 +382,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from smol_dsl.runner import check_config, run_sweep
     from smol_dsl.runner.footprint import fit_sweep
     from smol_dsl.runner.progress import sweep_summary
+    from smol_dsl.runner.run import check_out_dir, non_empty
 
     config = _config(args, seed=None)
     try:
@@ -395,6 +400,9 @@ def _sweep(args: argparse.Namespace) -> int:
         devices = devices[: args.devices]
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     out = Path(args.out) if args.out is not None else Path("runs") / f"{args.task}-sweep"
+    check_out_dir(out)
+    if not args.resume and part == (0, 1) and non_empty(out):
+        raise UsageError(f"{out} already exists and is not empty; use --resume to continue it or another --out")
     runs = len(range(part[0], len(schedules) * len(seeds), part[1]))
     share = f" (process {part[0]} of {part[1]}: {runs} of them)" if part[1] > 1 else ""
     print(

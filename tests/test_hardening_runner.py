@@ -88,6 +88,29 @@ def test_out_that_cannot_be_a_run_directory(command, tmp_path, monkeypatch, caps
     assert sorted(os.listdir()) == ["afile"]  # nothing was created, not even runs/
 
 
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_out_is_refused_before_anything_compiles(command, tmp_path, monkeypatch, capsys):
+    import smol_dsl.runner
+
+    def never(*args, **kwargs):
+        raise AssertionError("the runner started")
+
+    monkeypatch.setattr(smol_dsl.runner, "run_experiment", never)
+    monkeypatch.setattr(smol_dsl.runner, "run_sweep", never)
+    monkeypatch.chdir(tmp_path)
+    Path("afile").write_text("precious")
+    Path("busy").mkdir()
+    Path("busy/notes.txt").write_text("precious")
+    argv = RUN if command == "run" else ["sweep", "walker2d", "human", "--seeds", "1", *FLAGS, "--no-progress"]
+    for out, message in (
+        ("afile", "afile is a file"),
+        ("busy", "busy already exists and is not empty; use --resume"),
+    ):
+        code, err = cli([*argv, "--out", out], capsys)
+        assert code == 2 and message in err, (out, err)
+    assert Path("busy/notes.txt").read_text() == "precious"
+
+
 def test_library_refuses_an_empty_out_dir(library):
     with pytest.raises(RunError, match="--out: empty path"):
         run_experiment("walker2d", library["human"], CONFIG, out_dir="")
