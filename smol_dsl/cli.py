@@ -572,6 +572,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RecursionError:
         print(f"smol-dsl {args.command}: error: input nested too deeply to read", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        # stdout closed early (`smol-dsl report ... | head`): the work is done; stop quietly,
+        # as a command killed by SIGPIPE would.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 128 + 13
     except OSError as error:
         # The environment, not a bug: a full disk, a read-only file system, a path that is
         # not a directory. Name the file when the OS says which.
