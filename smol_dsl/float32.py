@@ -216,12 +216,8 @@ def _mul(args: list[_Value], node: sp.Expr, x: Any) -> _Value:
 def _reciprocal(value: _Value, node: sp.Expr, x: Any) -> _Value:
     distance = value.distance_from_zero
     if distance < SAFE_MIN:
-        reason = (
-            "divides by a value that can round to 0 in float32"
-            if value.low * value.high > 0
-            else "divides by a value that reaches 0"
-        )
-        raise _fail(node, reason, x)
+        # the domain check proved the exact divisor non-zero: reaching 0 here is rounding
+        raise _fail(node, "divides by a value that can round to 0 in float32", x)
     exact = 1 / value.exact
     error = value.error / (distance * (distance + value.error)) + _rounded(1 / distance)
     return _Value(exact, _slack(error))
