@@ -72,7 +72,17 @@ def time_limit(seconds: float) -> Iterator[None]:
         signal.signal(signal.SIGPROF, previous)
 
 
-_SYMPY_FAILURES = (NotImplementedError, ValueError, TypeError, AttributeError, RecursionError, VerificationTimeoutError)
+_SYMPY_FAILURES = (
+    NotImplementedError,
+    ValueError,
+    TypeError,
+    AttributeError,
+    RecursionError,
+    ArithmeticError,  # OverflowError: sympy's set code lists the roots of sin(1e20*t) as a range
+    LookupError,
+    VerificationTimeoutError,
+)
+"""What a sympy method may raise when it cannot handle an expression: the next method takes over."""
 
 
 def real(value: sp.Expr | None) -> float | None:
