@@ -435,17 +435,10 @@ def parse_program(text: str) -> ast.Program:
     check_text(text)
     try:
         tree = _parser().parse(text)
+        _check_nesting(tree)  # a located error for deep expressions, before the Transformer recurses
+        return _ToAst().transform(tree)
     except UnexpectedInput as error:
         raise _syntax_error(error, text) from None
-    except RecursionError:
-        raise ScheduleError(
-            "expression nested too deeply",
-            span=Span(1, 1),
-            hint="split it with `let` constants",
-        ) from None
-    _check_nesting(tree)
-    try:
-        return _ToAst().transform(tree)
     except VisitError as error:
         if isinstance(error.orig_exc, ScheduleError):
             raise error.orig_exc from None

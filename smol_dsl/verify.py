@@ -201,20 +201,17 @@ def _joins(segments: tuple[SymbolicSegment, ...]) -> tuple[JoinCertificate, ...]
 def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
     where = f"segment {segment.index + 1} ({segment.describe_range()}, {segment.kind})"
     kind = piece.label if segment.kind == "bell" else segment.kind
+
+    def certified(low: float, high: float, monotone: Monotone, exact: bool, error: float) -> PieceCertificate:
+        return PieceCertificate(
+            segment.index + 1, kind, float(piece.start), float(piece.end), low, high, monotone, exact, error
+        )
+
     if segment.random is not None:
         low, high = real(segment.random.low), real(segment.random.high)
         assert low is not None and high is not None
-        return PieceCertificate(
-            segment.index + 1,
-            kind,
-            float(piece.start),
-            float(piece.end),
-            low,
-            high,
-            "constant" if low == high else "random",
-            True,
-            _built_in_error("random", low, high),
-        )
+        monotone: Monotone = "constant" if low == high else "random"
+        return certified(low, high, monotone, True, _built_in_error("random", low, high))
     if segment.bell is not None:
         # Each half of a bell is a + (p - a) * (G(t) - G(s)) / (1 - G(s)) with G monotone on
         # the half: it runs monotonically from its end value to the peak, so its extrema
@@ -225,20 +222,10 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
         assert low is not None and high is not None
         rising = piece.end == bell.peak_at
         if low == high:
-            monotone: Monotone = "constant"
+            monotone = "constant"
         else:
             monotone = "increasing" if (real(bell.peak) > real(edge)) == rising else "decreasing"
-        return PieceCertificate(
-            segment.index + 1,
-            kind,
-            float(piece.start),
-            float(piece.end),
-            low,
-            high,
-            monotone,
-            True,
-            _built_in_error("bell", low, high),
-        )
+        return certified(low, high, monotone, True, _built_in_error("bell", low, high))
     try:
         violation = domain_violation(piece.expr, piece.start, piece.end)
         expr = simplified(piece.expr)
@@ -269,17 +256,7 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
         error = _float32_error(segment, piece, where)
     else:
         error = _built_in_error(segment.kind, found.low, found.high)
-    return PieceCertificate(
-        segment.index + 1,
-        kind,
-        float(piece.start),
-        float(piece.end),
-        found.low,
-        found.high,
-        monotone,
-        found.exact,
-        error,
-    )
+    return certified(found.low, found.high, monotone, found.exact, error)
 
 
 def _built_in_error(kind: str, low: float, high: float) -> float:
