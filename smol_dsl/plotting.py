@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from smol_dsl.schedule import Schedule
+from smol_dsl import Schedule
 
 if TYPE_CHECKING:
     import jax

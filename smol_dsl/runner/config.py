@@ -7,8 +7,8 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
+from smol_dsl import Schedule
 from smol_dsl.errors import UserInputError
-from smol_dsl.schedule import Schedule
 from smol_dsl.seeds import check_seed
 from smol_dsl.tasks import TASK_NAMES
 

@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from smol_dsl import Schedule
 from smol_dsl.runner.config import RunConfig
-from smol_dsl.schedule import Schedule
 from smol_dsl.tasks import Task
 
 PANELS = (("max_fitness", "max fitness"), ("coverage", "coverage (%)"), ("qd_score", "QD score"))

@@ -5,9 +5,9 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from smol_dsl import Schedule
 from smol_dsl.runner.config import RunConfig
 from smol_dsl.runner.run import RunResult, format_duration
-from smol_dsl.schedule import Schedule
 
 
 class ProgressBar:

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from smol_dsl import Schedule
 from smol_dsl.runner.algorithm import Evaluation, cvt_centroids, phased_map_elites
 from smol_dsl.runner.checkpoint import (
     CHECKPOINT,
@@ -44,7 +45,6 @@ from smol_dsl.runner.checkpoint import (
 from smol_dsl.runner.config import RunConfig, RunError
 from smol_dsl.runner.footprint import fit_sweep
 from smol_dsl.runner.lock import LOCK_FILE, DirectoryLock
-from smol_dsl.schedule import Schedule
 from smol_dsl.tasks import Task, make_task
 
 METRIC_FIELDS = (

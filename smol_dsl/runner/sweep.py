@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from smol_dsl import Schedule
 from smol_dsl.runner.algorithm import Evaluation, cvt_centroids
 from smol_dsl.runner.batched import BatchedMapElites, stack_runs
 from smol_dsl.runner.checkpoint import (
@@ -56,7 +57,6 @@ from smol_dsl.runner.run import (
     storage_errors,
     write_new_files,
 )
-from smol_dsl.schedule import Schedule
 from smol_dsl.tasks import Task, make_task
 
 SWEEP_FILE = "sweep.json"
