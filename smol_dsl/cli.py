@@ -238,7 +238,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _plot(args: argparse.Namespace) -> int:
-    from smol_dsl.plotting import FIGURE_FORMATS, PAPER_FIGURE, save_figure, schedule_figure
+    from smol_dsl.results.figures import FIGURE_FORMATS, PAPER_FIGURE, save_figure, schedule_figure
 
     names = args.schedules or list(PAPER_FIGURE)
     if args.out is None:
@@ -509,7 +509,7 @@ def _checked_part(index: int, count: int) -> tuple[int, int]:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from smol_dsl.report import METRICS, write_report
+    from smol_dsl.results.report import METRICS, write_report
 
     if args.metric is not None and args.metric not in METRICS:
         raise UsageError(f"unknown metric {args.metric!r}; the metrics are {', '.join(METRICS)}")

@@ -15,18 +15,17 @@ import shutil
 import warnings
 import zipfile
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from test_report import write_run
 
 import smol_dsl
-from smol_dsl import report as report_module
 from smol_dsl.cli import main
-from smol_dsl.plotting import schedule_figure
-from smol_dsl.report import REPORT_FILES, ReportError, read_run, write_report
-from smol_dsl.runner.figures import save_run_figures
+from smol_dsl.results import report as report_module
+from smol_dsl.results.figures import save_run_figures, schedule_figure
+from smol_dsl.results.report import REPORT_FILES, ReportError, write_report
+from smol_dsl.results.rundir import read_run
 
 SCHEDULES = ("smol", "vanilla")
 SEEDS = (0, 1, 2)
@@ -399,8 +398,7 @@ def test_run_figures_of_a_schedule_named_with_dollar_signs(pristine, tmp_path):
     path = tmp_path / "money.sched"
     path.write_text('name "cost $\\\\frac{$ x"\n0% .. 90%: constant 1.2\n90% .. 100%: tail\n')
     run = read_run(pristine / "walker2d-smol-seed0")
-    task = SimpleNamespace(name="walker2d", descriptor_size=1)  # metrics.png only
-    save_run_figures(tmp_path, run.rows, None, task, run.config, smol_dsl.load(path))
+    save_run_figures(tmp_path, run.rows, None, None, run.config, smol_dsl.load(path))  # metrics.png only
     assert (tmp_path / "metrics.png").read_bytes().startswith(b"\x89PNG")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.png", "money.sched"]
 

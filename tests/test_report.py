@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from smol_dsl.cli import main
-from smol_dsl.report import ReportError, load_runs, pvalue_table, write_report
+from smol_dsl.results.report import ReportError, load_runs, pvalue_table, write_report
+from smol_dsl.results.rundir import METRIC_FIELDS
 from smol_dsl.runner import preset_config
-from smol_dsl.runner.run import METRIC_FIELDS
 
 SETTINGS = dict(evaluations=16 * 13, batch_size=16, num_phases=10, num_centroids=32, episode_length=20)
 

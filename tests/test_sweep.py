@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from smol_dsl.cli import main
-from smol_dsl.report import load_runs
+from smol_dsl.results.report import load_runs
 from smol_dsl.runner import RunError, load_archive, preset_config, run_experiment, run_sweep
 from smol_dsl.runner.sweep import plan_sweep
 

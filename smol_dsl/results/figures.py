@@ -1,0 +1,328 @@
+"""Every figure smol-dsl draws: the paper's Figure 2 (`schedule_figure`: alpha over
+training), a run's metrics.png and archive.png (`save_run_figures`), and the report's
+figures (`results_figure`: median and IQR over seeds; `archives_figure`: final archives side
+by side); and the line styles and legend placement they share.
+
+Figures are `matplotlib.figure.Figure`s made directly, never through pyplot, so no
+matplotlib backend is selected or switched anywhere: `save_figure` (or `figure.savefig`)
+renders PNG, SVG or PDF by the file's suffix. Everything is drawn from plain data (metrics
+rows, numpy arrays, descriptor bounds, a RunConfig, a Schedule); nothing imports Brax, and
+JAX only inside `schedule_figure`, which evaluates schedules.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import matplotlib
+import matplotlib.colors
+import numpy as np
+from matplotlib.figure import Figure
+
+from smol_dsl.results.rundir import (
+    ARCHIVE_FIGURE,
+    METRICS_FIGURE,
+    METRICS_SCHEMA,
+    SCORES,
+    FinalArchive,
+    RunRecord,
+    alpha_one_evaluations,
+)
+
+if TYPE_CHECKING:
+    import jax
+
+    from smol_dsl import Schedule
+    from smol_dsl.runner.config import RunConfig
+
+FIGURE_FORMATS = (".png", ".svg", ".pdf")
+PAPER_FIGURE = ("vanilla", "smol", "smol-reverse", "human")
+"""The schedules of the paper's Figure 2, in its order."""
+
+LEGEND_INSIDE = 10
+"""Up to this many series the legend sits inside the axes; past it, below them in columns."""
+DASHES = ("-", "--", ":", "-.")
+MARKERS = (None, "o", "s", "^", "v", "D", "x", "+")
+LABEL_CHARS = 40
+"""Legend labels longer than this are shortened (with an ellipsis)."""
+
+
+def series_styles(count: int) -> list[dict[str, Any]]:
+    """`count` distinguishable line styles for plot(): matplotlib's 10 colours for up to 10
+    series; past that, tab20's 20 colours times 4 dash patterns (80 different), then markers."""
+    if count <= len(matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]):
+        colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
+    else:
+        colors = [matplotlib.colors.to_hex(c) for c in matplotlib.colormaps["tab20"].colors]
+    styles = []
+    for k in range(count):
+        pattern, rest = divmod(k, len(colors))
+        style: dict[str, Any] = {"color": colors[rest], "ls": DASHES[pattern % len(DASHES)]}
+        marker = MARKERS[(pattern // len(DASHES)) % len(MARKERS)]
+        if marker is not None:
+            style.update(marker=marker, markevery=0.1, markersize=4)
+        styles.append(style)
+    return styles
+
+
+def legend_label(text: str) -> str:
+    """A name as a legend or title shows it: literal (no mathtext) and not too long."""
+    if len(text) > LABEL_CHARS:
+        text = text[: LABEL_CHARS - 1] + "…"
+    return text.replace("$", r"\$")
+
+
+def place_legend(figure: Figure, axes: Any, *, fontsize: float = 8, **options: Any) -> None:
+    """The legend of axes' labelled lines: inside the axes for up to LEGEND_INSIDE series;
+    otherwise below the plot, in as many columns as the figure's width holds, the figure
+    made taller to fit it, so that any number of series fits without overlapping."""
+    handles, labels = axes.get_legend_handles_labels()
+    if len(labels) <= LEGEND_INSIDE:
+        axes.legend(handles, labels, fontsize=fontsize, **options)
+        return
+    width, height = figure.get_size_inches()
+    longest = max(len(label) for label in labels)
+    column = 0.55 + longest * fontsize * 0.0085  # inches: the line sample, then the text
+    columns = max(1, min(len(labels), int(width * 0.95 // column)))
+    rows = math.ceil(len(labels) / columns)
+    figure.set_size_inches(width, height + rows * fontsize * 0.022 + 0.35)
+    figure.legend(handles, labels, loc="outside lower center", ncols=columns, fontsize=fontsize, **options)
+
+
+def schedule_figure(
+    schedules: Sequence[Schedule],
+    *,
+    num_phases: int = 100,
+    key: jax.Array | None = None,
+    smooth_points: int = 1001,
+) -> Figure:
+    """Draw alpha per phase (steps) and the smooth curve for each schedule, overlaid.
+
+    A dashed vertical line marks where alpha becomes 1 for good (one line per distinct
+    tail start). Each schedule has its own colour (and, past 20 schedules, dash pattern);
+    past 10 schedules the legend goes below the plot. Returns the matplotlib Figure; save
+    it with `save_figure(figure, path)` or `figure.savefig(path)`.
+    """
+    import jax.numpy as jnp  # the schedules are JAX functions
+
+    figure = Figure(figsize=(7.0, 4.2), layout="constrained")
+    axes = figure.add_subplot()
+    smooth_t = np.linspace(0.0, 1.0, smooth_points)
+    phase_starts = np.arange(num_phases + 1) / num_phases * 100
+    for schedule, style in zip(schedules, series_styles(len(schedules)), strict=True):
+        steps = np.asarray(schedule.phase_alphas(num_phases, key))
+        label = legend_label(schedule.name)
+        axes.step(phase_starts, np.append(steps, steps[-1]), where="post", lw=2.0, label=label, **style)
+        curve = np.asarray(schedule.alpha(jnp.asarray(smooth_t), key))
+        axes.plot(smooth_t * 100, curve, color=style["color"], ls=style["ls"], lw=1.0, alpha=0.45)
+    for tail in sorted({float(s.tail_start) for s in schedules if 0 < s.tail_start < 1}):
+        axes.axvline(tail * 100, color="0.3", ls="--", lw=1.0)
+        axes.annotate("α = 1", xy=(tail * 100, 1.0), xytext=(4, 6), textcoords="offset points", fontsize=8, color="0.3")
+    axes.axhline(1.0, color="0.7", lw=0.6, zorder=0)
+    axes.set_xlim(0, 100)
+    axes.set_xlabel("training progress (%)")
+    axes.set_ylabel("α (actuator gear scale)")
+    axes.set_title(f"Torque scaling schedules ({num_phases} phases)")
+    axes.grid(alpha=0.25)
+    place_legend(figure, axes, fontsize=9 if len(schedules) <= LEGEND_INSIDE else 8, frameon=False)
+    return figure
+
+
+def save_figure(figure: Figure, out: str | Path, *, dpi: int = 150) -> Path:
+    """Save to PNG, SVG or PDF by the file's suffix, atomically: the figure is drawn into a
+    temporary file beside `out` and renamed over it, so `out` is never left half-written."""
+    path = Path(out)
+    if path.suffix.lower() not in FIGURE_FORMATS:
+        raise ValueError(
+            f"unsupported figure format {path.suffix or '(none)'!r}; use one of {', '.join(FIGURE_FORMATS)}"
+        )
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        figure.savefig(temporary, dpi=dpi, format=path.suffix.lower()[1:])
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)
+    return path
+
+
+# ---------------------------------------------------------------------------- a run's figures
+def metrics_figure(rows: Sequence[Mapping[str, Any]], config: RunConfig, schedule: Schedule, title: str) -> Figure:
+    """Max fitness, coverage and QD score over training evaluations, with alpha beside them;
+    a dashed line where alpha becomes 1 for good."""
+    figure = Figure(figsize=(11, 3.4), layout="constrained")
+    panels = (*SCORES, "alpha")
+    axes = figure.subplots(1, len(panels))
+    evaluations = np.asarray([r["evaluations"] for r in rows], dtype=float)
+    first_tail_phase = config.num_phases - schedule.tail_phases(config.num_phases)
+    alpha_one = alpha_one_evaluations(rows, first_tail_phase)
+    for ax, name in zip(axes, panels, strict=True):
+        values = np.asarray([r[name] for r in rows], dtype=float)
+        ax.plot(evaluations, values, lw=1.4, drawstyle="steps-post" if name == "alpha" else "default")
+        if alpha_one is not None and 0 < alpha_one:
+            ax.axvline(alpha_one, color="0.3", ls="--", lw=1.0)
+        ax.set_xlabel("evaluations")
+        ax.set_ylabel(METRICS_SCHEMA[name].axis_label)
+        ax.grid(alpha=0.25)
+    figure.suptitle(title)
+    return figure
+
+
+def draw_archive(
+    ax: Any,
+    centroids: np.ndarray,
+    fitnesses: np.ndarray,
+    low: Sequence[float],
+    high: Sequence[float],
+    *,
+    pixels: int = 400,
+    vmin: float | None = None,
+    vmax: float | None = None,
+) -> Any:
+    """Draw a 2-D archive on ax: each CVT cell (its Voronoi region, rasterised by nearest
+    centroid) coloured by its elite's fitness; empty cells are left blank. Returns the image."""
+    from scipy.spatial import cKDTree
+
+    xs = np.linspace(low[0], high[0], pixels)
+    ys = np.linspace(low[1], high[1], pixels)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    _, cell = cKDTree(np.asarray(centroids)).query(grid)
+    fitnesses = np.asarray(fitnesses, dtype=float).reshape(-1)
+    image = np.where(fitnesses[cell] > -np.inf, fitnesses[cell], np.nan).reshape(pixels, pixels)
+    shown = ax.imshow(
+        image,
+        origin="lower",
+        extent=(low[0], high[0], low[1], high[1]),
+        aspect="auto",
+        cmap="viridis",
+        vmin=vmin,
+        vmax=vmax,
+    )
+    filled = fitnesses > -np.inf
+    ax.scatter(*np.asarray(centroids)[~filled].T, s=2, color="0.75", label="empty cell")
+    ax.set_xlabel("descriptor 1")
+    ax.set_ylabel("descriptor 2")
+    return shown
+
+
+def archive_figure(
+    fitnesses: np.ndarray,
+    centroids: np.ndarray,
+    low: Sequence[float],
+    high: Sequence[float],
+    title: str,
+    *,
+    pixels: int = 400,
+) -> Figure:
+    """An archive as a 2-D map, coloured by fitness, with its coverage."""
+    figure = Figure(figsize=(5.6, 4.8), layout="constrained")
+    ax = figure.add_subplot()
+    fitnesses = np.asarray(fitnesses).reshape(-1)
+    shown = draw_archive(ax, centroids, fitnesses, low, high, pixels=pixels)
+    figure.colorbar(shown, ax=ax, label="fitness")
+    coverage = 100 * (fitnesses > -np.inf).mean()
+    ax.set_title(f"{title}\ncoverage {coverage:.1f}%", fontsize=10)
+    return figure
+
+
+def save_run_figures(
+    directory: Path,
+    rows: Sequence[Mapping[str, Any]],
+    archive: Mapping[str, np.ndarray] | None,
+    bounds: tuple[Sequence[float], Sequence[float]] | None,
+    config: RunConfig,
+    schedule: Schedule,
+) -> list[Path]:
+    """metrics.png and, for an `archive` (its host arrays: `fitnesses` and `centroids`, as
+    `write_archive` takes them) of a task whose descriptor `bounds` (low, high) are 2-D,
+    archive.png, in the run directory; each written atomically (a run killed meanwhile leaves
+    no half-written image). Returns the files written."""
+    directory = Path(directory)
+    title = f"{config.task} - {legend_label(schedule.name)} - seed {config.seed}"
+    written = [save_figure(metrics_figure(rows, config, schedule, title), directory / METRICS_FIGURE, dpi=120)]
+    if archive is not None and bounds is not None and len(bounds[0]) == 2:
+        figure = archive_figure(archive["fitnesses"], archive["centroids"], bounds[0], bounds[1], title)
+        written.append(save_figure(figure, directory / ARCHIVE_FIGURE, dpi=120))
+    return written
+
+
+# ---------------------------------------------------------------------------- the report's figures
+ORDER_COLORS = {
+    "Vanilla MAP-Elites": "#4d4d4d",
+    "SMOL": "#1f77b4",
+    "SMOL-Reverse": "#ff7f0e",
+    "SMOL-Human": "#2ca02c",
+    "Random": "#9467bd",
+    "Extinction 5%": "#8c564b",
+    "Extinction 10%": "#e377c2",
+    "Extinction 50%": "#bcbd22",
+}
+"""The paper's schedules' colours (by their names); others take matplotlib's next ones."""
+ARCHIVE_COLUMNS = 4
+"""Final archives per row of `archives_figure`."""
+
+
+def results_figure(groups: Mapping[str, Sequence[RunRecord]], names: Sequence[str], title: str) -> Figure:
+    """Median (line) and interquartile range (band) over seeds of max fitness, coverage
+    and QD score against training evaluations, one colour per schedule (and, past 20, dash
+    patterns; past 10 schedules the legend goes below the plots); a dashed line from where
+    alpha is 1 for every schedule shown."""
+    figure = Figure(figsize=(13, 3.8), layout="constrained")
+    axes = figure.subplots(1, len(SCORES))
+    if len(names) <= LEGEND_INSIDE:  # the paper's colours for the paper's schedules
+        colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
+        styles = [
+            {"color": ORDER_COLORS.get(name, colors[(i + len(ORDER_COLORS)) % len(colors)])}
+            for i, name in enumerate(names)
+        ]
+    else:
+        styles = series_styles(len(names))
+    # where alpha is 1 for every schedule shown (the paper's fair-comparison line)
+    alpha_one = max((x for name in names if (x := groups[name][0].alpha_one_evaluations()) is not None), default=None)
+    for ax, metric in zip(axes, SCORES, strict=True):
+        for name, style in zip(names, styles, strict=True):
+            runs = groups[name]
+            evaluations = runs[0].curve(metric)[0]
+            values = np.stack([run.curve(metric)[1] for run in runs])
+            values[~np.isfinite(values)] = np.nan  # max fitness of an archive emptied by extinction
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a moment when every archive is empty
+                low, median, high = np.nanpercentile(values, [25, 50, 75], axis=0)
+            ax.plot(evaluations, median, lw=1.5, label=legend_label(f"{name} ({len(runs)})"), **style)
+            ax.fill_between(evaluations, low, high, color=style["color"], alpha=0.2, lw=0)
+        if alpha_one is not None:
+            ax.axvline(alpha_one, color="0.3", ls="--", lw=1.0)
+        ax.set_xlabel("evaluations")
+        ax.set_ylabel(METRICS_SCHEMA[metric].axis_label)
+        ax.grid(alpha=0.25)
+    place_legend(figure, axes[0], title="schedule (runs)", title_fontsize=8)
+    figure.suptitle(title)
+    return figure
+
+
+def archives_figure(
+    panels: Sequence[tuple[str, int, FinalArchive]], low: Sequence[float], high: Sequence[float], title: str
+) -> Figure:
+    """Final archives side by side, in rows of up to ARCHIVE_COLUMNS, on one colour scale:
+    one panel per (schedule name, seed, archive), titled with the name, seed and coverage."""
+    filled = np.concatenate([archive.fitnesses[archive.filled] for _, _, archive in panels])
+    vmin, vmax = (float(filled.min()), float(filled.max())) if filled.size else (None, None)
+    columns = min(len(panels), ARCHIVE_COLUMNS)
+    rows = math.ceil(len(panels) / columns)
+    figure = Figure(figsize=(3.6 * columns + 1.0, 3.6 * rows + 0.4), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(rows, columns)).reshape(-1)
+    shown = None
+    for ax, (name, seed, archive) in zip(axes, panels, strict=False):
+        shown = draw_archive(ax, archive.centroids, archive.fitnesses, low, high, pixels=300, vmin=vmin, vmax=vmax)
+        coverage = 100 * archive.filled.mean()
+        ax.set_title(f"{legend_label(name)}, seed {seed}\ncoverage {coverage:.1f}%", fontsize=9)
+    for ax in axes[len(panels) :]:
+        ax.set_axis_off()
+    if shown is not None:
+        figure.colorbar(shown, ax=list(axes[: len(panels)]), label="fitness", shrink=min(1.0, 2.5 / rows))
+    figure.suptitle(title)
+    return figure

@@ -1,0 +1,457 @@
+"""The paper's analysis of finished runs: the U-test table, and the report's files.
+
+`load_runs(paths)` finds run directories (written by `smol-dsl run` or `sweep`), reads and
+checks every one of them (`smol_dsl.results.rundir.read_run`: its config.json, certificate
+and schedule, every row of metrics.csv, and its final archive.npz), checks that they can be
+compared (one task, the same settings, finished, no run counted twice), and groups them by
+schedule. `pvalue_table` gives, for every pair of schedules, the one-sided Mann-Whitney U
+test (scipy) of "the column's final scores are higher than the row's", in the layout of the
+paper's `tables/pvalues.tex`; `write_report` writes it as Markdown and LaTeX with the
+figures (`smol_dsl.results.figures`): everything is read and drawn before the first file is
+written, every file is written atomically, and an earlier report is replaced only with
+`force=True` (`--force`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from smol_dsl.errors import UserInputError
+from smol_dsl.results.figures import archives_figure, results_figure
+from smol_dsl.results.rundir import (
+    CONFIG_FILE,
+    METRICS_FILE,
+    METRICS_SCHEMA,
+    SCORES,
+    RunDirectoryError,
+    RunRecord,
+    descriptor_bounds,
+    is_run_directory,
+    read_run,
+    task_spec,
+)
+
+METRICS = SCORES
+"""The final scores a report can compare (`--metric`); each task has its default."""
+
+COLUMNS = ("SMOL", "SMOL-Reverse", "SMOL-Human")
+"""The paper's table compares every schedule (rows) with these curricula (columns)."""
+ABLATIONS = ("Random", "Extinction 5%", "Extinction 10%", "Extinction 50%")
+ORDER = ("SMOL", "SMOL-Reverse", "SMOL-Human", "Vanilla MAP-Elites", *ABLATIONS)
+SIGNIFICANCE = 0.05
+
+SEED_MODULUS = 2**32
+"""JAX takes a seed modulo 2**32: seeds S and S + 2**32 give the same run."""
+FIGURE_STEMS = ("main-results", "ablation-results", "archives")
+REPORT_FILES = (
+    "table.md",
+    "pvalues.tex",
+    "scores.csv",
+    *(f"{stem}{suffix}" for stem in FIGURE_STEMS for suffix in (".png", ".pdf")),
+)
+"""Every file a report may write: an output directory holding any of them holds a report."""
+MOST_PROBLEMS = 5
+"""How many unusable run directories one error lists."""
+
+
+class ReportError(UserInputError):
+    """Run directories that cannot be reported on together, or an output directory that
+    cannot take the report, with what to do instead."""
+
+
+def find_run_directories(paths: Iterable[str | Path]) -> list[Path]:
+    """Run directories given, or found anywhere below the given directories, each once."""
+    found: dict[Path, None] = {}
+    for given in paths:
+        path = Path(given)
+        if not path.exists():
+            raise ReportError(f"{path}: no such directory")
+        if not path.is_dir():
+            raise ReportError(f"{path} is not a directory; give run or sweep directories")
+        if is_run_directory(path):
+            candidates = [path]
+        else:
+            below = {p.parent for name in (CONFIG_FILE, METRICS_FILE) for p in path.rglob(name)}
+            candidates = sorted(below)
+        for candidate in candidates:
+            if is_run_directory(candidate):
+                found.setdefault(candidate.resolve(), None)
+    return list(found)
+
+
+def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
+    """Finished runs below `paths`, grouped by schedule name in the paper's order.
+
+    Every run directory is read and checked first (`read_run`); then refuses (ReportError)
+    no runs, unfinished runs, runs of several tasks or settings, two schedules with one name,
+    and a (schedule, seed) given twice, seeds that JAX takes as equal (S and S + 2**32) included.
+    """
+    directories = find_run_directories(paths)
+    if not directories:
+        raise ReportError(
+            f"no run directories in {', '.join(str(p) for p in paths)} (a run directory holds config.json "
+            "and metrics.csv); make some with `smol-dsl sweep` or `smol-dsl run`"
+        )
+    runs, problems = [], []
+    for directory in directories:
+        try:
+            runs.append(read_run(directory))
+        except RunDirectoryError as error:
+            problems.append(str(error))
+    if problems:
+        if len(problems) == 1:
+            raise ReportError(problems[0])
+        shown = "\n  ".join(problems[:MOST_PROBLEMS])
+        more = f"\n  and {len(problems) - MOST_PROBLEMS} more" if len(problems) > MOST_PROBLEMS else ""
+        raise ReportError(f"{len(problems)} of the {len(directories)} run directories cannot be used:\n  {shown}{more}")
+    tasks = sorted({run.task for run in runs})
+    if len(tasks) > 1:
+        examples = "; ".join(f"{task}: {next(r.directory for r in runs if r.task == task)}" for task in tasks)
+        raise ReportError(
+            f"the runs are of different tasks ({', '.join(tasks)}), which cannot share a table ({examples}); "
+            "report each task's directories separately"
+        )
+    unfinished = [run for run in runs if not run.finished]
+    if unfinished:
+        raise ReportError(
+            f"{len(unfinished)} run(s) have not finished, e.g. {unfinished[0].directory} (generation "
+            f"{unfinished[0].final['generation']} of {unfinished[0].config.generations}); finish them with "
+            "`smol-dsl sweep ... --resume` or `smol-dsl run ... --resume`, or leave them out"
+        )
+    reference = runs[0]
+    steps = _steps(reference)
+    for run in runs[1:]:
+        if run.settings != reference.settings:
+            differing = sorted(k for k in run.settings if run.settings[k] != reference.settings.get(k))
+            raise ReportError(
+                f"{run.directory} and {reference.directory} were run with different settings "
+                f"({', '.join(differing)}); only runs with the same settings can be compared"
+            )
+        if _steps(run) != steps:
+            raise ReportError(
+                f"{run.directory / 'metrics.csv'} ({len(run.rows)} rows) and {reference.directory / 'metrics.csv'} "
+                f"({len(reference.rows)} rows) log different generations and phases although their runs have the "
+                "same settings; one of them was cut or edited: rerun it, or move it out of the directories you "
+                "report on"
+            )
+    groups: dict[str, list[RunRecord]] = {}
+    for run in runs:
+        group = groups.setdefault(run.schedule, [])
+        if group and group[0].schedule_source != run.schedule_source:
+            raise ReportError(
+                f"two different schedules are both named {run.schedule!r} ({group[0].directory} and "
+                f"{run.directory}); give them different `name`s"
+            )
+        twin = next((other for other in group if other.seed % SEED_MODULUS == run.seed % SEED_MODULUS), None)
+        if twin is not None:
+            same = (
+                f"seed {run.seed} is there twice"
+                if twin.seed == run.seed
+                else f"seeds {twin.seed} and {run.seed} are the same run (JAX takes seeds modulo 2**32)"
+            )
+            raise ReportError(
+                f"{run.schedule} {same} ({twin.directory} and {run.directory}); each run must count once: "
+                "leave one of them out"
+            )
+        group.append(run)
+    ordered = sorted(groups, key=lambda name: (ORDER.index(name) if name in ORDER else len(ORDER), name))
+    return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
+
+
+def _steps(run: RunRecord) -> list[tuple[int, int, int]]:
+    """What a run's rows log, whatever its results: (generation, phase, evaluations) per row."""
+    return [(row["generation"], row["phase"], row["evaluations"]) for row in run.rows]
+
+
+def final_scores(groups: dict[str, list[RunRecord]], metric: str) -> dict[str, np.ndarray]:
+    """Each schedule's final value of the metric, one per run (seed order)."""
+    if metric not in METRICS:
+        raise ReportError(f"unknown metric {metric!r}; the metrics are {', '.join(METRICS)}")
+    return {name: np.asarray([run.final[metric] for run in runs], dtype=float) for name, runs in groups.items()}
+
+
+@dataclass(frozen=True)
+class PValueTable:
+    """Median final scores and p-values; `pvalues[row][column]` is P(column better than row)."""
+
+    task: str
+    metric: str
+    rows: list[str]
+    columns: list[str]
+    medians: dict[str, float]
+    runs: dict[str, int]
+    pvalues: dict[str, dict[str, float | None]]
+
+    def notes(self) -> list[str]:
+        """Warnings about the table's power: with few runs no p-value can fall below 0.05."""
+        notes = []
+        for row in self.rows:
+            for column in self.columns:
+                if row != column and smallest_p(self.runs[column], self.runs[row]) >= SIGNIFICANCE:
+                    notes.append(
+                        f"{column} ({self.runs[column]} runs) vs {row} ({self.runs[row]} runs): the smallest "
+                        f"possible p-value is {smallest_p(self.runs[column], self.runs[row]):.3g}, so this pair "
+                        f"cannot reach p < {SIGNIFICANCE}; run more seeds (the paper used 7 to 10)"
+                    )
+        return notes
+
+    @property
+    def best(self) -> set[str]:
+        """The schedules with the highest median (several when they tie)."""
+        top = max(self.medians[name] for name in self.rows)
+        return {name for name in self.rows if self.medians[name] == top}
+
+    def markdown(self) -> str:
+        header = ["schedule", "runs", "median score", *(f"p: {_markdown_escape(c)} better" for c in self.columns)]
+        lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
+        for row in self.rows:
+            median = _number(self.medians[row])
+            cells = [_markdown_escape(row), str(self.runs[row]), f"**{median}**" if row in self.best else median]
+            for column in self.columns:
+                p = self.pvalues[row][column]
+                cells.append("-" if p is None else (f"**{p:.3e}**" if p < SIGNIFICANCE else f"{p:.3e}"))
+            lines.append("| " + " | ".join(cells) + " |")
+        return "\n".join(lines) + "\n"
+
+    def latex(self) -> str:
+        columns = len(self.columns)
+        lines = [
+            "\\begin{tabular}{l|c|" + "c|" * columns + "}",
+            "\\toprule",
+            f" & Median & \\multicolumn{{{columns}}}{{c|}}{{p-values}} \\\\",
+            " & score & " + " & ".join(_latex_escape(c) for c in self.columns) + " \\\\",
+            "\\midrule",
+        ]
+        for row in self.rows:
+            median = _number(self.medians[row])
+            cells = [_latex_escape(row), f"\\textbf{{{median}}}" if row in self.best else median]
+            for column in self.columns:
+                p = self.pvalues[row][column]
+                cells.append("-" if p is None else (f"\\textbf{{{p:.3e}}}" if p < SIGNIFICANCE else f"{p:.3e}"))
+            lines.append(" & ".join(cells) + " \\\\")
+        lines += ["\\bottomrule", "\\end{tabular}"]
+        return "\n".join(lines) + "\n"
+
+
+def smallest_p(runs_a: int, runs_b: int) -> float:
+    """The smallest p-value an exact one-sided U test can give with these sample sizes."""
+    return 1 / math.comb(runs_a + runs_b, runs_a)
+
+
+def _number(value: float) -> str:
+    return f"{value:.1f}"
+
+
+def _markdown_escape(text: str) -> str:
+    """A name as one table cell: a | would start another cell, a line break another row."""
+    return "".join(char if char.isprintable() else " " for char in text).replace("|", "\\|")
+
+
+LATEX_SPECIAL = {
+    **{char: "\\" + char for char in "&%$#_{}"},
+    "\\": "\\textbackslash{}",
+    "^": "\\textasciicircum{}",
+    "~": "\\textasciitilde{}",
+}
+
+
+def _latex_escape(text: str) -> str:
+    """A name as LaTeX text: its special characters escaped, control characters as spaces."""
+    return "".join(LATEX_SPECIAL.get(char, char if char.isprintable() else " ") for char in text)
+
+
+def pvalue_table(groups: dict[str, list[RunRecord]], metric: str | None = None) -> PValueTable:
+    """The paper's table: rows every schedule, columns the SMOL curricula present (all
+    schedules when none is), each cell the one-sided Mann-Whitney U p-value of "column
+    better than row" on final scores."""
+    from scipy.stats import mannwhitneyu
+
+    task = next(iter(groups.values()))[0].task
+    metric = metric or task_spec(task).default_metric
+    scores = final_scores(groups, metric)
+    names = list(groups)
+    columns = [name for name in COLUMNS if name in groups] or names
+    rows = columns + [name for name in names if name not in columns]
+    pvalues: dict[str, dict[str, float | None]] = {}
+    for row in rows:
+        pvalues[row] = {}
+        for column in columns:
+            if row == column:
+                pvalues[row][column] = None
+            else:
+                result = mannwhitneyu(scores[column], scores[row], alternative="greater")
+                pvalues[row][column] = float(result.pvalue)
+    return PValueTable(
+        task=task,
+        metric=metric,
+        rows=rows,
+        columns=columns,
+        medians={name: float(np.median(scores[name])) for name in names},
+        runs={name: len(groups[name]) for name in names},
+        pvalues=pvalues,
+    )
+
+
+# ---------------------------------------------------------------------------- figures
+def figure_groups(names: Sequence[str]) -> dict[str, list[str]]:
+    """The paper's two figures: main results (the curricula and vanilla, and any other
+    schedule) and ablations (SMOL against random and extinction), where present."""
+    ablations = [name for name in names if name in ABLATIONS]
+    main = [name for name in names if name not in ABLATIONS]
+    figures = {}
+    if main:
+        figures["main-results"] = main
+    if ablations:
+        figures["ablation-results"] = (["SMOL"] if "SMOL" in names else []) + ablations
+    return figures
+
+
+def median_run(runs: Sequence[RunRecord], metric: str) -> RunRecord:
+    """The run with the median final score (the lower one for an even number of runs)."""
+    ranked = sorted(runs, key=lambda run: run.final[metric])
+    return ranked[(len(ranked) - 1) // 2]
+
+
+# ---------------------------------------------------------------------------- report
+@dataclass(frozen=True)
+class Report:
+    """What `write_report` wrote."""
+
+    table: PValueTable
+    files: list[Path]
+
+
+def earlier_report(out_dir: str | Path) -> list[str]:
+    """The report files already in out_dir (none if it does not exist)."""
+    out = Path(out_dir)
+    return [name for name in REPORT_FILES if os.path.lexists(out / name)] if out.is_dir() else []
+
+
+def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str]:
+    """Refuse (ReportError) an output directory that is a file, cannot be made or written,
+    or holds an earlier report (unless `force`). Returns the earlier report's files."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ReportError(
+            f"{out} is a file, not a directory: the report is several files (table.md, pvalues.tex, scores.csv, "
+            "figures) and -o names the directory they go into; give another -o"
+        )
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ReportError(f"cannot create {out}: {existing} is a file, not a directory; give another -o")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ReportError(f"cannot write into {existing} (permission denied); give another -o")
+    blocked = [name for name in REPORT_FILES if (out / name).is_dir()]
+    if blocked:
+        raise ReportError(
+            f"{out / blocked[0]} is a directory, where the report writes a file; move it, or give another -o"
+        )
+    earlier = earlier_report(out)
+    if earlier and not force:
+        raise ReportError(
+            f"{out} already holds a report ({', '.join(earlier)}); give --force to replace it "
+            "(force=True in Python), or another output directory with -o"
+        )
+    return earlier
+
+
+def render_report(groups: dict[str, list[RunRecord]], table: PValueTable) -> dict[str, bytes]:
+    """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv and
+    the figures (PNG and PDF)."""
+    files: dict[str, bytes] = {}
+    label = METRICS_SCHEMA[table.metric].axis_label
+    caption = (
+        f"{table.task} ({label}): median final scores and p-values of one-sided Mann-Whitney U tests, with "
+        f"the alternative that the column schedule is better than the row schedule; p < {SIGNIFICANCE} in bold."
+    )
+    files["table.md"] = f"{caption}\n\n{table.markdown()}".encode()
+    files["pvalues.tex"] = f"% {caption}\n{table.latex()}".encode()
+    scores = io.StringIO(newline="")
+    writer = csv.writer(scores)
+    writer.writerow(["schedule", "seed", *METRICS, "directory"])
+    for name, runs in groups.items():
+        for run in runs:
+            writer.writerow([name, run.seed, *(run.final[m] for m in METRICS), str(run.directory)])
+    files["scores.csv"] = scores.getvalue().encode()
+    figures = {}
+    for stem, names in figure_groups(list(groups)).items():
+        what = "main results" if stem == "main-results" else "ablations"
+        figures[stem] = results_figure(groups, names, f"{table.task}: {what} (median and IQR over seeds)")
+    low, high = descriptor_bounds(table.task)
+    if len(low) == 2:  # each schedule's run with the median final score, side by side
+        chosen = {name: median_run(runs, table.metric) for name, runs in groups.items()}
+        panels = [(name, run.seed, run.final_archive()) for name, run in chosen.items()]
+        by = table.metric.replace("_", " ")
+        figures["archives"] = archives_figure(panels, low, high, f"{table.task}: final archives (median run by {by})")
+    for stem, figure in figures.items():
+        for suffix in ("png", "pdf"):
+            image = io.BytesIO()
+            figure.savefig(image, format=suffix, dpi=130)
+            files[f"{stem}.{suffix}"] = image.getvalue()
+    return files
+
+
+def write_files(out_dir: str | Path, files: dict[str, bytes], remove: Sequence[str] = ()) -> list[Path]:
+    """Write files into out_dir (made if need be), each atomically: all are written to
+    temporary files in out_dir first and then renamed into place, so a failure (a full disk)
+    leaves no file half-written and, before the renames, changes nothing; temporary files are
+    removed whatever happens. Then remove the files named in `remove`."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ReportError(f"cannot create {out} ({error.strerror or error}); give another -o") from None
+    temporaries: dict[str, Path] = {}
+    name = ""
+    try:
+        for name, data in files.items():
+            temporaries[name] = out / f".{name}.{os.getpid()}.tmp"
+            _write_bytes(temporaries[name], data)
+        for name, temporary in temporaries.items():
+            os.replace(temporary, out / name)
+        for name in remove:
+            (out / name).unlink(missing_ok=True)
+    except OSError as error:
+        raise ReportError(
+            f"cannot write {out / name} ({error.strerror or error}); free some space or give another -o"
+        ) from None
+    finally:
+        for temporary in temporaries.values():
+            try:
+                temporary.unlink(missing_ok=True)
+            except OSError:
+                pass
+    return [out / name for name in files]
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    with open(path, "wb") as file:
+        file.write(data)
+
+
+def write_report(
+    paths: Sequence[str | Path], out_dir: str | Path, metric: str | None = None, *, force: bool = False
+) -> Report:
+    """Table (table.md, pvalues.tex), final scores (scores.csv) and figures (PNG and PDF)
+    of the runs below `paths`, written into out_dir.
+
+    Every run is read and checked, and every file drawn, before the first file is written;
+    each file is written atomically. An out_dir that already holds a report is refused
+    (ReportError) unless `force`, which replaces it (files of the earlier report that this one
+    does not write, such as an ablation figure, are removed)."""
+    earlier = check_output_directory(out_dir, force)
+    groups = load_runs(paths)
+    table = pvalue_table(groups, metric)
+    files = render_report(groups, table)
+    written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
+    return Report(table, written)
