@@ -13,7 +13,7 @@ import pytest
 
 from smol_dsl.cli import main
 from smol_dsl.results.report import ReportError, load_runs, pvalue_table, write_report
-from smol_dsl.results.rundir import METRIC_FIELDS
+from smol_dsl.results.rundir import ARCHIVE_FILE, METRICS_FILE, MetricsLog, write_archive
 from smol_dsl.runner import preset_config
 
 SETTINGS = dict(evaluations=16 * 13, batch_size=16, num_phases=10, num_centroids=32, episode_length=20)
@@ -30,7 +30,8 @@ def write_run(
     finished: bool = True,
     **overrides: object,
 ) -> Path:
-    """A run directory in the runner's format whose last row has the given final scores."""
+    """A run directory in the runner's format (written by smol_dsl.results.rundir's writers) whose
+    last row has the given final scores."""
     config = preset_config(task, "quick", seed=seed, **{**SETTINGS, **overrides})
     sched = library[schedule]
     directory.mkdir(parents=True)
@@ -39,34 +40,34 @@ def write_run(
     (directory / "certificate.json").write_text(json.dumps({"name": sched.name, "tail_start": float(sched.tail_start)}))
     last = config.generations if finished else config.generations // 2
     rng = np.random.default_rng(seed)
-    with open(directory / "metrics.csv", "w", newline="") as file:
-        writer = csv.DictWriter(file, METRIC_FIELDS)
-        writer.writeheader()
-        for generation in range(last + 1):
-            row = {
-                "generation": generation,
-                "phase": config.phase_of_generation(generation) if generation else 0,
-                "alpha": 1.0,
-                "event": "train" if generation else "init",
-                "evaluations": (generation + 1) * config.batch_size,
-                "reevaluations": 0,
-                "coverage": rng.uniform(0, 50),
-                "max_fitness": rng.uniform(0, 100),
-                "qd_score": rng.uniform(0, 1000),
-                "non_finite": 0,
-            }
-            if generation == last:
-                row.update(final)
-            writer.writerow(row)
+    rows = []
+    for generation in range(last + 1):
+        row = {
+            "generation": generation,
+            "phase": config.phase_of_generation(generation) if generation else 0,
+            "alpha": 1.0,
+            "event": "train" if generation else "init",
+            "evaluations": (generation + 1) * config.batch_size,
+            "reevaluations": 0,
+            "coverage": rng.uniform(0, 50),
+            "max_fitness": rng.uniform(0, 100),
+            "qd_score": rng.uniform(0, 1000),
+            "non_finite": 0,
+        }
+        if generation == last:
+            row.update(final)
+        rows.append(row)
+    MetricsLog(directory / METRICS_FILE, rows)
     cells = config.num_centroids
     fitnesses = np.where(rng.uniform(size=cells) < 0.3, rng.uniform(0, 100, cells), -np.inf)
-    np.savez(
-        directory / "archive.npz",
-        **{"genotypes/params/Dense_0/kernel": np.zeros((cells, 2, 2))},
-        fitnesses=fitnesses,
-        descriptors=rng.uniform(size=(cells, 2)),
-        centroids=rng.uniform(size=(cells, 2)),
-        filled=fitnesses > -np.inf,
+    write_archive(
+        directory / ARCHIVE_FILE,
+        {
+            "genotypes/params/Dense_0/kernel": np.zeros((cells, 2, 2)),
+            "fitnesses": fitnesses,
+            "descriptors": rng.uniform(size=(cells, 2)),
+            "centroids": rng.uniform(size=(cells, 2)),
+        },
     )
     return directory
 

@@ -232,8 +232,8 @@ class MetricsSchema:
 
 METRICS_SCHEMA = MetricsSchema(
     (
-        Column("generation", int, "the generation the row ends (0: the initial population)"),
-        Column("phase", int, "the phase it trains in, 0 to N − 1"),
+        Column("generation", int, "generations done (0: the initial population)"),
+        Column("phase", int, "the phase, 0 to N − 1 (a `reevaluate` row's: the one it starts)"),
         Column("alpha", float, "the phase's α", label="α", valid=_positive, expected="a finite number above 0"),
         Column("event", str, "what the row logs (below)", choices=EVENTS),
         Column("evaluations", int, "training evaluations so far, the initial population included"),
