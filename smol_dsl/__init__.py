@@ -6,9 +6,9 @@
 """
 
 from smol_dsl.errors import ScheduleError, UserInputError
-from smol_dsl.resources import library_names
-from smol_dsl.schedule import Schedule, load, parse
-from smol_dsl.verify import Certificate
+from smol_dsl.language.library import library_names
+from smol_dsl.language.schedule import Schedule, load, parse
+from smol_dsl.language.verify import Certificate
 
 __version__ = "0.1.0"
 

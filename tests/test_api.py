@@ -137,7 +137,7 @@ def test_certificate_is_json_ready(library):
 
 
 def test_symbolic_form_is_a_piecewise_of_t(library):
-    from smol_dsl.symbolic import T
+    from smol_dsl.language.symbolic import T
 
     expr = library["smol"].symbolic
     assert float(expr.subs(T, 0)) == 1.5

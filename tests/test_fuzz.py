@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import smol_dsl
-from smol_dsl.resources import library_dir
+from smol_dsl.language.library import library_dir
 
 REPO = Path(__file__).resolve().parent.parent
 LIBRARY_FILES = sorted(library_dir().glob("*.sched")) + sorted((REPO / "examples").glob("*.sched"))

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 import smol_dsl
 from smol_dsl.cli import main
-from smol_dsl.symbolic import MAX_SEGMENTS
+from smol_dsl.language.compiler import MAX_SEGMENTS
 
 COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 DENSE = np.linspace(0.0, 1.0, 20_001, dtype=np.float32)

@@ -12,10 +12,11 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 PROBE = """
-import smol_dsl, smol_dsl.resources as r, smol_dsl.runner, smol_dsl.tasks  # brax, mujoco and MJX too
+import smol_dsl, smol_dsl.runner, smol_dsl.tasks  # brax, mujoco and MJX too
+from smol_dsl.language import grammar, library
 assert smol_dsl.runner.__file__.startswith({site!r}) and smol_dsl.tasks.__file__.startswith({site!r})
-assert str(r.grammar_path()).startswith({site!r}), r.grammar_path()
-assert str(r.library_dir()).startswith({site!r}), r.library_dir()
+assert str(grammar.GRAMMAR_FILE).startswith({site!r}), grammar.GRAMMAR_FILE
+assert str(library.library_dir()).startswith({site!r}), library.library_dir()
 assert len(smol_dsl.library_names()) == 8, smol_dsl.library_names()
 print(smol_dsl.load("human").name, float(smol_dsl.load("smol").phase_alphas(100)[90]))
 """
@@ -37,7 +38,7 @@ def installed(tmp_path_factory) -> Path:
 
 def test_installed_package_works_from_any_directory(installed, tmp_path):
     package = installed / "smol_dsl"
-    assert (package / "grammar" / "sched.lark").is_file()
+    assert (package / "language" / "sched.lark").is_file()
     assert len(list((package / "schedules").glob("*.sched"))) == 8
     env = {**os.environ, "PYTHONPATH": str(installed)}
     result = subprocess.run(

@@ -35,7 +35,7 @@ from strategies import (
 from sympy.core.function import AppliedUndef
 
 import smol_dsl
-from smol_dsl.symbolic import T
+from smol_dsl.language.symbolic import T
 
 RTOL, ATOL = 1e-4, 1e-5  # float32 evaluation against exact values
 NEAR_EDGE = Fraction(1, 10**6)  # float32 t this close to a boundary may land on either side of it

@@ -28,7 +28,7 @@ import sympy as sp
 from mpmath import iv
 from sympy.calculus.util import maximum, minimum
 
-from smol_dsl.symbolic import T
+from smol_dsl.language.symbolic import T
 
 EXACT_SECONDS = 2.0
 """Budget for one exact sympy method (extrema, monotonicity, simplification)."""

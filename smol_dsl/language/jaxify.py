@@ -1,7 +1,8 @@
-"""Exact sympy segment expressions -> jittable JAX functions of t.
+"""Exact sympy expressions -> jittable JAX functions of t: how a formula's piece is evaluated.
 
 A small tree-walking translator over the node types the language can produce, so that the
 JAX function is built from the verified sympy object itself (no code generation, no eval).
+Shapes with a closed form evaluate themselves (`Shape.evaluation`); `to_jax` serves the rest.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from collections.abc import Callable
 import jax.numpy as jnp
 import sympy as sp
 
-from smol_dsl.symbolic import BellParams, T
+from smol_dsl.language.symbolic import T
 
 _UNARY: dict[type, Callable[[jnp.ndarray], jnp.ndarray]] = {
     sp.exp: jnp.exp,
@@ -73,39 +74,3 @@ def _fold(op: Callable[[jnp.ndarray, jnp.ndarray], jnp.ndarray], values: list[jn
     for value in values[1:]:
         result = op(result, value)
     return result
-
-
-def bell(params: BellParams, segment_start: float, segment_end: float) -> Callable[[jnp.ndarray], jnp.ndarray]:
-    """f(t) for a bell segment on [start, end], finite for every width the language allows.
-
-    Each half is base + (peak - base) * (G(t) - G(edge)) / (1 - G(edge)) with the Gaussian
-    G(t) = exp(-x(t)) and x(t) = ((t - peak_at) / width)**2 / 2. It is computed in three forms:
-    directly when G(edge) is small; with expm1 when G(edge) is close to 1 (a wide bell), to
-    avoid cancellation; and as its limit 1 - r, r = ((t - peak_at) / (edge - peak_at))**2, when
-    x(edge) underflows to 0 (a bell far wider than its segment is a parabola). x may overflow to
-    inf for a narrow bell, which exp takes to 0; no form divides 0 by 0 or multiplies inf by 0.
-    """
-    start_value, peak, end_value = float(params.start), float(params.peak), float(params.end)
-    peak_at, width = float(params.peak_at), float(params.width)
-
-    def function(t: jnp.ndarray) -> jnp.ndarray:
-        rising = t < peak_at
-        edge = jnp.where(rising, segment_start, segment_end)
-        base = jnp.where(rising, start_value, end_value)
-        if width >= 2.0**-60:  # 1 / (2 width**2) fits float32
-            scale = 1.0 / (2.0 * width**2)
-            at_t = scale * (t - peak_at) ** 2  # -log G(t)
-            at_edge = scale * (edge - peak_at) ** 2  # -log G(edge)
-        else:
-            at_t = 0.5 * ((t - peak_at) / width) ** 2
-            at_edge = 0.5 * ((edge - peak_at) / width) ** 2
-        ratio = jnp.clip(((t - peak_at) / (edge - peak_at)) ** 2, 0.0, 1.0)  # at_t / at_edge
-        direct = (jnp.exp(-at_t) - jnp.exp(-at_edge)) / (1.0 - jnp.exp(-at_edge))
-        gentle_edge = jnp.clip(at_edge, 1e-30, 1.0)  # only used where at_edge is in this range
-        gentle = (
-            jnp.exp(-gentle_edge) * jnp.expm1(gentle_edge - jnp.minimum(at_t, gentle_edge)) / -jnp.expm1(-gentle_edge)
-        )
-        shape = jnp.where(at_edge > 1.0, direct, jnp.where(at_edge > 1e-30, gentle, 1.0 - ratio))
-        return base + (peak - base) * jnp.clip(shape, 0.0, 1.0)
-
-    return function

@@ -15,10 +15,12 @@ import numpy as np
 import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.resources import library_dir, library_names
-from smol_dsl.symbolic import SymbolicProgram, SymbolicSegment, T, compile_program, percent
-from smol_dsl.syntax import parse_program
-from smol_dsl.verify import Certificate, tail_start, verify
+from smol_dsl.language.compiler import compile_program
+from smol_dsl.language.library import library_dir, library_names
+from smol_dsl.language.shapes import Drawn, Formula, Line
+from smol_dsl.language.symbolic import SymbolicProgram, SymbolicSegment, percent
+from smol_dsl.language.syntax import parse_program
+from smol_dsl.language.verify import Certificate, tail_start, verify
 
 if TYPE_CHECKING:
     import jax
@@ -36,21 +38,21 @@ class _Tables:
     """Per-segment numbers from which alpha is gathered, so that evaluating a schedule of any
     number of segments holds O(len(t)) values, not one array per segment.
 
-    A table-shaped segment is `offset + scale * u` with u = (t - start) / (end - start) in
-    [0, 1] (constant, linear, tail and every segment of the alpha == 1 tail), or a random one
-    `low + span * draw[first_draw + bin]`; formula segments (expr, bell) are evaluated one by
-    one and selected with `where`.
+    Each segment's shape says how (`Shape.evaluation`): a `Line` is `offset + scale * u` with
+    u = (t - start) / (end - start) in [0, 1] (constant, linear, tail, and every segment of the
+    alpha == 1 tail), a `Drawn` one `offset + scale * draw[first_draw + bin]` (random), and a
+    `Formula` (expr, bell) is evaluated one by one and selected with `where`.
     """
 
     starts: np.ndarray  # float64, segment starts
     inverse_lengths: np.ndarray  # 1 / (end - start)
     offsets: np.ndarray
     scales: np.ndarray
-    is_random: np.ndarray  # bool
-    first_draws: np.ndarray  # int32: where a random segment's draws start in the flat draws
+    is_random: np.ndarray  # bool: alpha is offset + scale * draw
+    first_draws: np.ndarray  # int32: where a segment's draws start in the flat draws
     draw_counts: np.ndarray  # int32: its number of draws (1 elsewhere)
-    random_every: np.ndarray  # its `every` (1 elsewhere)
-    formulas: tuple[int, ...]  # indices of segments evaluated by their own function
+    random_every: np.ndarray  # its draws' `every` (1 elsewhere)
+    formulas: tuple[tuple[int, Callable[..., Any]], ...]  # (index, JAX function) of Formula segments
 
 
 class Schedule:
@@ -78,7 +80,6 @@ class Schedule:
         self.extinction: float = float(program.extinction)
         self.segments: tuple[SymbolicSegment, ...] = program.segments
         self.tail_start: Fraction = _fraction(tail_start(self.segments))
-        self._evaluators: dict[int, Callable[..., Any]] | None = None
         self._table_cache: _Tables | None = None
         self._phase_table_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._phase_alphas_compiled: dict[int, Callable[..., Any]] = {}
@@ -86,7 +87,7 @@ class Schedule:
     # ------------------------------------------------------------------ symbolic
     @property
     def symbolic(self) -> sp.Piecewise:
-        """alpha(t) as one exact sympy Piecewise in `smol_dsl.symbolic.T`."""
+        """alpha(t) as one exact sympy Piecewise in `smol_dsl.language.symbolic.T`."""
         return self._program.piecewise
 
     def tail_phases(self, num_phases: int) -> int:
@@ -199,8 +200,8 @@ class Schedule:
         # that a schedule of many random segments compiles quickly.
         by_count: dict[int, list[int]] = {}
         for segment in self.segments:
-            if segment.random is not None:
-                by_count.setdefault(segment.random.count, []).append(segment.index)
+            if segment.draws is not None:
+                by_count.setdefault(segment.draws.count, []).append(segment.index)
         draws: list[jax.Array | None] = [None] * len(self.segments)
         for count, indices in by_count.items():
             keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jax.numpy.asarray(indices))
@@ -233,9 +234,9 @@ class Schedule:
                 t = Fraction(k, num_phases)
                 j = bisect.bisect_right(starts, t) - 1
                 segment_of[k] = j
-                random = self.segments[j].random
-                if random is not None:
-                    bin_of[k] = min(math.floor((t - starts[j]) / _fraction(random.every)), random.count - 1)
+                draws = self.segments[j].draws
+                if draws is not None:
+                    bin_of[k] = min(math.floor((t - starts[j]) / _fraction(draws.every)), draws.count - 1)
             self._phase_table_cache[num_phases] = (segment_of, bin_of)
         return self._phase_table_cache[num_phases]
 
@@ -256,11 +257,10 @@ class Schedule:
             drawn = draws[jnp.asarray(tables.first_draws)[index] + bins]
             fraction = jnp.where(jnp.asarray(tables.is_random)[index], drawn, fraction)
         alpha = table(tables.offsets) + table(tables.scales) * fraction
-        evaluators = self._compiled()
-        for j in tables.formulas:
+        for j, function in tables.formulas:
             segment = self.segments[j]
             inside = jnp.clip(t, float(segment.start), float(segment.end))
-            alpha = jnp.where(index == j, evaluators[j](inside).astype(t.dtype), alpha)
+            alpha = jnp.where(index == j, function(inside).astype(t.dtype), alpha)
         return alpha
 
     def _tables(self) -> _Tables:
@@ -272,25 +272,22 @@ class Schedule:
             formulas = []
             drawn = 0
             for j, segment in enumerate(self.segments):
-                if _fraction(segment.start) >= self.tail_start:
-                    # proven identically 1 (say sin(t)**2 + cos(t)**2): exactly 1.0 in floats too
-                    offsets[j] = 1.0
-                elif segment.random is not None:
-                    offsets[j] = float(segment.random.low)
-                    scales[j] = float(segment.random.high - segment.random.low)
+                # proven identically 1 from the tail's start (say sin(t)**2 + cos(t)**2): exactly 1.0 in floats too
+                at_one = _fraction(segment.start) >= self.tail_start
+                evaluation = Line(1.0) if at_one else segment.shape.evaluation(segment)
+                if isinstance(evaluation, Line):
+                    offsets[j], scales[j] = evaluation.offset, evaluation.scale
+                elif isinstance(evaluation, Drawn):
+                    assert segment.draws is not None, f"a Drawn segment without draws: {segment.kind}"
+                    offsets[j], scales[j] = evaluation.offset, evaluation.scale
                     is_random[j] = True
-                    first_draws[j], draw_counts[j] = drawn, segment.random.count
-                    random_every[j] = float(segment.random.every)
-                elif segment.kind == "constant":
-                    offsets[j] = float(segment.pieces[0].expr)
-                elif segment.kind == "linear":
-                    at_start = segment.pieces[0].expr.subs(T, segment.start)
-                    at_end = segment.pieces[0].expr.subs(T, segment.end)
-                    offsets[j], scales[j] = float(at_start), float(at_end - at_start)
+                    first_draws[j], draw_counts[j] = drawn, segment.draws.count
+                    random_every[j] = float(segment.draws.every)
                 else:
-                    formulas.append(j)
-                if segment.random is not None:
-                    drawn += segment.random.count
+                    assert isinstance(evaluation, Formula)
+                    formulas.append((j, evaluation.function))
+                if segment.draws is not None:
+                    drawn += segment.draws.count
             starts = np.array([float(s.start) for s in self.segments])
             ends = np.array([float(s.end) for s in self.segments])
             self._table_cache = _Tables(
@@ -305,19 +302,6 @@ class Schedule:
                 formulas=tuple(formulas),
             )
         return self._table_cache
-
-    def _compiled(self) -> dict[int, Callable[..., Any]]:
-        """The JAX function of each formula segment (expr or bell)."""
-        if self._evaluators is None:
-            from smol_dsl.jaxify import bell, to_jax
-
-            def evaluator(segment: SymbolicSegment) -> Callable[..., Any]:
-                if segment.bell is not None:
-                    return bell(segment.bell, float(segment.start), float(segment.end))
-                return to_jax(segment.pieces[0].expr)
-
-            self._evaluators = {j: evaluator(self.segments[j]) for j in self._tables().formulas}
-        return self._evaluators
 
     def __repr__(self) -> str:
         c = self.certificate

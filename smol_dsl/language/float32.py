@@ -2,7 +2,7 @@
 
 Verification proves facts about the exact alpha(t); the runner evaluates it in float32 (JAX's
 default), where `(1e20*t)**2` overflows and `1/(t - 0.5 + 1e-30)` divides by a rounded 0.
-This module bounds the float32 program that `smol_dsl.jaxify.to_jax` builds from the same
+This module bounds the float32 program that `smol_dsl.language.jaxify.to_jax` builds from the same
 sympy tree, node by node, by a running error analysis over interval arithmetic:
 
 - every node's exact value lies in an interval (mpmath `iv`, outward rounding), and the float32
@@ -17,7 +17,8 @@ sympy tree, node by node, by a running error analysis over interval arithmetic:
 
 The segment is split into sub-intervals (bisected where a bound fails) so that interval
 arithmetic's overestimation does not reject sensible expressions. The result is the largest
-error over the segment; `smol_dsl.verify` requires alpha minus that error to stay positive.
+error over the segment; `smol_dsl.language.verify` requires alpha minus that error to stay
+positive. `located_float32_error` is the proof as a shape's hook uses it (`Shape.float32_error`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ from typing import Any
 import sympy as sp
 from mpmath import iv
 
-from smol_dsl.symbolic import T
+from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.language.prover import ENCLOSURE_SECONDS, VerificationTimeoutError, time_limit
+from smol_dsl.language.symbolic import T
 
 UNIT = 2.0**-24
 """Unit roundoff of float32 (round to nearest)."""
@@ -110,6 +113,38 @@ def float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> float:
         b = start_f + width * (k + 1) / PIECES if k + 1 < PIECES else end_f
         worst = max(worst, _checked(expr, a, b, 0))
     return worst
+
+
+def located_float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational, *, where: str, span: Span) -> float:
+    """`float32_error` within the enclosure time budget, or a ScheduleError at `span` that names
+    the segment (`where`) and the sub-expression that fails."""
+    try:
+        with time_limit(ENCLOSURE_SECONDS):
+            return float32_error(expr, start, end)
+    except Float32RangeError as failure:
+        part = _short(failure.node)
+        low, high = failure.where
+        at = "" if not failure.node.has(T) else f" for t in {low:.4g} .. {high:.4g}"
+        raise ScheduleError(
+            f"{where} cannot be evaluated safely in float32: `{part}` {failure.reason}{at}",
+            span=span,
+            hint="alpha is computed in 32-bit floats (JAX's default): keep every part of the expression between "
+            "about 1e-36 and 1e36 in size, and divisors and logarithm arguments well away from 0 "
+            "(e.g. rescale `(1e20*t)**2 / 1e40` as `t**2`)",
+        ) from None
+    except VerificationTimeoutError:
+        raise ScheduleError(
+            f"could not bound the float32 evaluation of {where} within the time limit",
+            span=span,
+            hint="simplify the expression or split the segment",
+        ) from None
+
+
+def _short(node: sp.Expr) -> str:
+    text = str(node)
+    if len(text) > 40 or any(len(word) > 12 for word in text.replace("*", " ").split()):
+        text = str(sp.N(node, 4))
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _iv_rational(value: sp.Rational) -> Any:

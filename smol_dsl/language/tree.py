@@ -8,9 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from smol_dsl.errors import Span
+
+if TYPE_CHECKING:
+    from smol_dsl.language.shapes import Shape
 
 # ---------------------------------------------------------------- expressions
 
@@ -56,53 +59,21 @@ Expr = Number | Name | Call | Unary | Binary
 
 
 @dataclass(frozen=True)
-class Constant:
-    value: Expr
+class SegmentShape:
+    """A segment's shape as written: its unit in the shape registry and the values of its
+    grammar rule, in order (None for an optional value left out)."""
 
-
-@dataclass(frozen=True)
-class Linear:
-    start: Expr
-    end: Expr
-
-
-@dataclass(frozen=True)
-class Bell:
-    start: Expr
-    peak: Expr
-    peak_at: Expr
-    end: Expr
-    width: Expr | None
-
-
-@dataclass(frozen=True)
-class Random:
-    low: Expr
-    high: Expr
-    every: Expr | None
-
-
-@dataclass(frozen=True)
-class Expression:
-    body: Expr
-
-
-@dataclass(frozen=True)
-class Tail:
-    pass
-
-
-Shape = Constant | Linear | Bell | Random | Expression | Tail
+    unit: Shape
+    args: tuple[Expr | None, ...]
 
 
 @dataclass(frozen=True)
 class Segment:
     start: Expr
     end: Expr
-    shape: Shape
+    shape: SegmentShape
     monotone: Literal["increasing", "decreasing"] | None
     span: Span
-    kind_span: Span
 
 
 # ---------------------------------------------------------------- directives

@@ -10,7 +10,7 @@ from fractions import Fraction
 from functools import lru_cache
 from typing import Any
 
-from lark import Lark, Token, Transformer, Tree, v_args
+from lark import Token, Transformer, Tree, v_args
 from lark.exceptions import (
     UnexpectedCharacters,
     UnexpectedEOF,
@@ -19,70 +19,57 @@ from lark.exceptions import (
     VisitError,
 )
 
-from smol_dsl import ast
 from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.resources import grammar_path
+from smol_dsl.language import shapes, tree
+from smol_dsl.language.grammar import grammar_text, parser
 
 MAX_SOURCE_CHARS = 1_000_000
 MAX_EXPONENT_DIGITS = 400  # literals beyond 1e±400 are out of float64 range anyway
 MAX_NESTING = 100
 """Deepest expression: brackets, calls, and every operator of a chain (`a + b + c` is 2) count."""
-SEGMENT_KINDS = ("constant", "linear", "bell", "random", "expr", "tail")
 
-# Hints for common mistakes, found by Lark's example matching: each hint lists a few
-# wrong lines that fail the same way.
-_EXAMPLE_HINTS: dict[str, list[str]] = {
-    "a segment is written `START .. END: SHAPE`, e.g. `0% .. 90%: linear 1.5 -> 1`": [
-        "0% .. 90% linear 1 -> 2",
-        "0% .. 90% constant 1",
-        "0% .. 90% tail",
-    ],
-    "write a range of the run as `START .. END`, e.g. `0% .. 90%`": [
-        "0% - 90%: tail",
-        "0% 90%: tail",
-        "0% to 90%: tail",
-    ],
-    "`linear` takes two values joined by `->`, e.g. `linear 1.5 -> 1`": [
-        "0% .. 90%: linear 1 2",
-        "0% .. 90%: linear 1 to 2",
-        "0% .. 90%: linear 1 .. 2",
-    ],
-    "`bell` is written `bell START -> PEAK at POSITION -> END [width WIDTH]`, "
-    "e.g. `bell 0.7 -> 1.4 at 30% -> 1 width 12%`": [
-        "0% .. 90%: bell 1 -> 2 -> 1",
-        "0% .. 90%: bell 1 2 0.5 1",
-        "0% .. 90%: bell 1 -> 2 at 50%",
-        "0% .. 90%: bell 1 -> 2 at 50% 1",
-    ],
-    "`random` is written `random LOW .. HIGH [every STEP]`, e.g. `random 0.5 .. 1.5 every 1%`": [
-        "0% .. 90%: random 1 2",
-        "0% .. 90%: random 1 -> 2",
-        "0% .. 90%: random 1 .. 2 every",
-    ],
-    "a range is written `LOW .. HIGH`, e.g. `bounds 0.5 .. 1.5`": [
-        "bounds 1 2",
-        "bounds 1 -> 2",
-    ],
-    "`let` binds a name to a constant, e.g. `let peak = 1.4`": [
-        "let peak 1.4",
-        "let = 1.4",
-        "let 1 = 2",
-    ],
-    'strings are written in double quotes, e.g. `name "SMOL"`': [
-        "name SMOL",
-        "description hello",
-    ],
-    "the segment kinds are " + ", ".join(SEGMENT_KINDS): [
-        "0% .. 90%: 1",
-        "0% .. 90%: step 1",
-        "0% .. 90%: lineal 1 -> 2",
-    ],
-    "one statement per line; a segment may be followed only by `increasing` or `decreasing`": [
-        "0% .. 90%: constant 1 0% .. 100%: tail",
-        "0% .. 90%: linear 1 -> 2 monotone",
-        "0% .. 90%: tail tail",
-    ],
-}
+
+def _example_hints() -> dict[str, list[str]]:
+    """Hints for common mistakes, found by Lark's example matching: each hint lists a few
+    wrong lines that fail the same way. Each shape's unit gives its own; the first match wins."""
+    kinds = "the segment kinds are " + ", ".join(shapes.keywords())
+    return {
+        "a segment is written `START .. END: SHAPE`, e.g. `0% .. 90%: linear 1.5 -> 1`": [
+            "0% .. 90% linear 1 -> 2",
+            "0% .. 90% constant 1",
+            "0% .. 90% tail",
+        ],
+        "write a range of the run as `START .. END`, e.g. `0% .. 90%`": [
+            "0% - 90%: tail",
+            "0% 90%: tail",
+            "0% to 90%: tail",
+        ],
+        **{shape.syntax_hint: list(shape.syntax_mistakes) for shape in shapes.units() if shape.syntax_hint},
+        "a range is written `LOW .. HIGH`, e.g. `bounds 0.5 .. 1.5`": [
+            "bounds 1 2",
+            "bounds 1 -> 2",
+        ],
+        "`let` binds a name to a constant, e.g. `let peak = 1.4`": [
+            "let peak 1.4",
+            "let = 1.4",
+            "let 1 = 2",
+        ],
+        'strings are written in double quotes, e.g. `name "SMOL"`': [
+            "name SMOL",
+            "description hello",
+        ],
+        kinds: [
+            "0% .. 90%: 1",
+            "0% .. 90%: step 1",
+            "0% .. 90%: lineal 1 -> 2",
+        ],
+        "one statement per line; a segment may be followed only by `increasing` or `decreasing`": [
+            "0% .. 90%: constant 1 0% .. 100%: tail",
+            "0% .. 90%: linear 1 -> 2 monotone",
+            "0% .. 90%: tail tail",
+        ],
+    }
+
 
 _TERMINAL_WORDS = {
     "NUMBER": "a number",
@@ -92,16 +79,6 @@ _TERMINAL_WORDS = {
     "$END": "the end of the file",
     "MONOTONE": "`increasing` or `decreasing`",
 }
-
-
-@lru_cache(maxsize=1)
-def _parser() -> Lark:
-    return Lark(
-        grammar_path().read_text(encoding="utf-8"),
-        parser="lalr",
-        propagate_positions=True,
-        maybe_placeholders=True,
-    )
 
 
 def _span_of_token(token: Token) -> Span:
@@ -122,7 +99,7 @@ FLOAT_MAX = Fraction(sys.float_info.max)
 FLOAT_MIN = Fraction(sys.float_info.min)
 
 
-def _number(token: Token) -> ast.Number:
+def _number(token: Token) -> tree.Number:
     """A literal as an exact Fraction; it must be 0 or a normal float64 magnitude."""
     text = str(token)
     span = _span_of_token(token)
@@ -139,27 +116,27 @@ def _number(token: Token) -> ast.Number:
     value = Fraction(text)
     if value != 0 and not FLOAT_MIN <= value <= FLOAT_MAX:
         raise out_of_range
-    return ast.Number(value, text, span)
+    return tree.Number(value, text, span)
 
 
 @v_args(meta=True)
-class _ToAst(Transformer):
-    """Turns Lark's parse tree into `smol_dsl.ast` nodes, one method per grammar rule."""
+class _ToTree(Transformer):
+    """Turns Lark's parse tree into `smol_dsl.language.tree` nodes, one method per grammar rule."""
 
     # expressions ------------------------------------------------------------
-    def number(self, meta: Any, children: list[Token]) -> ast.Number:
+    def number(self, meta: Any, children: list[Token]) -> tree.Number:
         return _number(children[0])
 
-    def name(self, meta: Any, children: list[Token]) -> ast.Name:
-        return ast.Name(str(children[0]), _span_of_token(children[0]))
+    def name(self, meta: Any, children: list[Token]) -> tree.Name:
+        return tree.Name(str(children[0]), _span_of_token(children[0]))
 
-    def call(self, meta: Any, children: list[Any]) -> ast.Call:
+    def call(self, meta: Any, children: list[Any]) -> tree.Call:
         function, *args = children
-        return ast.Call(str(function), tuple(a for a in args if a is not None), _span_of_meta(meta))
+        return tree.Call(str(function), tuple(a for a in args if a is not None), _span_of_meta(meta))
 
     def _binary(op: str):  # noqa: N805 - a method factory used at class creation
-        def build(self: _ToAst, meta: Any, children: list[Any]) -> ast.Binary:
-            return ast.Binary(op, children[0], children[1], _span_of_meta(meta))  # type: ignore[arg-type]
+        def build(self: _ToTree, meta: Any, children: list[Any]) -> tree.Binary:
+            return tree.Binary(op, children[0], children[1], _span_of_meta(meta))  # type: ignore[arg-type]
 
         return build
 
@@ -169,47 +146,30 @@ class _ToAst(Transformer):
     div = _binary("/")
     pow = _binary("**")
 
-    def neg(self, meta: Any, children: list[Any]) -> ast.Unary:
-        return ast.Unary("-", children[0], _span_of_meta(meta))
+    def neg(self, meta: Any, children: list[Any]) -> tree.Unary:
+        return tree.Unary("-", children[0], _span_of_meta(meta))
 
-    def pos(self, meta: Any, children: list[Any]) -> ast.Unary:
-        return ast.Unary("+", children[0], _span_of_meta(meta))
+    def pos(self, meta: Any, children: list[Any]) -> tree.Unary:
+        return tree.Unary("+", children[0], _span_of_meta(meta))
 
-    def percent(self, meta: Any, children: list[Any]) -> ast.Unary:
-        return ast.Unary("%", children[0], _span_of_meta(meta))
+    def percent(self, meta: Any, children: list[Any]) -> tree.Unary:
+        return tree.Unary("%", children[0], _span_of_meta(meta))
 
-    # shapes -----------------------------------------------------------------
-    def constant(self, meta: Any, children: list[Any]) -> ast.Constant:
-        return ast.Constant(children[0])
-
-    def linear(self, meta: Any, children: list[Any]) -> ast.Linear:
-        return ast.Linear(children[0], children[1])
-
-    def bell(self, meta: Any, children: list[Any]) -> ast.Bell:
-        start, peak, peak_at, end, width = children
-        return ast.Bell(start, peak, peak_at, end, width)
-
-    def random(self, meta: Any, children: list[Any]) -> ast.Random:
-        low, high, every = children
-        return ast.Random(low, high, every)
-
-    def expression(self, meta: Any, children: list[Any]) -> ast.Expression:
-        return ast.Expression(children[0])
-
-    def tail(self, meta: Any, children: list[Any]) -> ast.Tail:
-        return ast.Tail()
+    # shapes: every KEYWORD_shape rule ---------------------------------------
+    def __default__(self, data: Any, children: list[Any], meta: Any) -> Any:
+        if str(data).endswith("_shape"):
+            return tree.SegmentShape(shapes.unit(str(data).removesuffix("_shape")), tuple(children))
+        return super().__default__(data, children, meta)
 
     # statements -------------------------------------------------------------
-    def segment(self, meta: Any, children: list[Any]) -> ast.Segment:
+    def segment(self, meta: Any, children: list[Any]) -> tree.Segment:
         start, end, shape, monotone = children
-        span = _span_of_meta(meta)
-        return ast.Segment(
+        return tree.Segment(
             start=start,
             end=end,
             shape=shape,
             monotone=str(monotone) if monotone is not None else None,  # type: ignore[arg-type]
-            span=span,
-            kind_span=span,
+            span=_span_of_meta(meta),
         )
 
     def name_decl(self, meta: Any, children: list[Token]) -> tuple[str, Any, Span]:
@@ -218,28 +178,28 @@ class _ToAst(Transformer):
     def description_decl(self, meta: Any, children: list[Token]) -> tuple[str, Any, Span]:
         return ("description", str(children[0])[1:-1], _span_of_meta(meta))
 
-    def let_decl(self, meta: Any, children: list[Any]) -> ast.Let:
-        return ast.Let(str(children[0]), children[1], _span_of_meta(meta))
+    def let_decl(self, meta: Any, children: list[Any]) -> tree.Let:
+        return tree.Let(str(children[0]), children[1], _span_of_meta(meta))
 
-    def bounds_decl(self, meta: Any, children: list[Any]) -> ast.Bounds:
-        return ast.Bounds(children[0], children[1], _span_of_meta(meta))
+    def bounds_decl(self, meta: Any, children: list[Any]) -> tree.Bounds:
+        return tree.Bounds(children[0], children[1], _span_of_meta(meta))
 
-    def extinction_decl(self, meta: Any, children: list[Any]) -> ast.Extinction:
-        return ast.Extinction(children[0], _span_of_meta(meta))
+    def extinction_decl(self, meta: Any, children: list[Any]) -> tree.Extinction:
+        return tree.Extinction(children[0], _span_of_meta(meta))
 
     def continuous_decl(self, meta: Any, children: list[Any]) -> tuple[str, Any, Span]:
         return ("continuous", True, _span_of_meta(meta))
 
-    def start(self, meta: Any, children: list[Any]) -> ast.Program:
+    def start(self, meta: Any, children: list[Any]) -> tree.Program:
         return _assemble(children)
 
 
-def _assemble(statements: list[Any]) -> ast.Program:
+def _assemble(statements: list[Any]) -> tree.Program:
     """Collect statements into a Program, rejecting repeated directives."""
     fields: dict[str, Any] = {}
     seen: dict[str, Span] = {}
-    lets: list[ast.Let] = []
-    segments: list[ast.Segment] = []
+    lets: list[tree.Let] = []
+    segments: list[tree.Segment] = []
 
     def once(key: str, span: Span, value: Any) -> None:
         if key in seen:
@@ -254,22 +214,22 @@ def _assemble(statements: list[Any]) -> ast.Program:
     for statement in statements:
         if statement is None:
             continue
-        if isinstance(statement, ast.Segment):
+        if isinstance(statement, tree.Segment):
             segments.append(statement)
-        elif isinstance(statement, ast.Let):
+        elif isinstance(statement, tree.Let):
             lets.append(statement)
-        elif isinstance(statement, ast.Bounds):
+        elif isinstance(statement, tree.Bounds):
             once("bounds", statement.span, statement)
-        elif isinstance(statement, ast.Extinction):
+        elif isinstance(statement, tree.Extinction):
             once("extinction", statement.span, statement)
         else:
             key, value, span = statement
             once(key, span, value)
-    return ast.Program(lets=tuple(lets), segments=tuple(segments), **fields)
+    return tree.Program(lets=tuple(lets), segments=tuple(segments), **fields)
 
 
 def _expected_in_words(expected: set[str]) -> str:
-    terminals = {t.name: t for t in _parser().terminals}
+    terminals = {t.name: t for t in parser().terminals}
     words = set()
     for name in expected:
         if name in _TERMINAL_WORDS:
@@ -284,13 +244,17 @@ def _expected_in_words(expected: set[str]) -> str:
     return ", ".join(ordered)
 
 
-@lru_cache(maxsize=1)
 def _example_errors() -> list[tuple[str, UnexpectedInput]]:
+    return _example_errors_of(grammar_text())
+
+
+@lru_cache(maxsize=8)
+def _example_errors_of(grammar: str) -> list[tuple[str, UnexpectedInput]]:
     errors = []
-    for label, examples in _EXAMPLE_HINTS.items():
+    for label, examples in _example_hints().items():
         for example in examples:
             try:
-                _parser().parse(example)
+                parser().parse(example)
             except UnexpectedInput as error:
                 errors.append((label, error))
     return errors
@@ -356,9 +320,10 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
         else:
             message = f"unexpected {str(token)!r}"
             if token.type == "NAME":
-                close = difflib.get_close_matches(str(token), SEGMENT_KINDS, n=1)
-                if close and (error.expected & {"CONSTANT", "LINEAR", "BELL", "RANDOM", "EXPR", "TAIL"}):
-                    example = f"did you mean `{close[0]}`? The segment kinds are " + ", ".join(SEGMENT_KINDS)
+                kinds = shapes.keywords()
+                close = difflib.get_close_matches(str(token), kinds, n=1)
+                if close and (error.expected & {kind.upper() for kind in kinds}):
+                    example = f"did you mean `{close[0]}`? The segment kinds are " + ", ".join(kinds)
         if example is None and "_NL" in error.expected and token.type != "$END":
             example = "one statement per line: end the line before this, or join it to the expression with an operator"
         hint = example or f"expected {_expected_in_words(set(error.expected))}"
@@ -383,9 +348,9 @@ def _non_ascii_hint(char: str) -> str:
     return f"{what}: outside strings and comments a .sched file is ASCII"
 
 
-def _check_nesting(tree: Tree) -> None:
+def _check_nesting(parsed: Tree) -> None:
     """Refuse expressions nested deeper than MAX_NESTING, before anything recursive sees them."""
-    stack: list[tuple[Any, int]] = [(tree, 0)]
+    stack: list[tuple[Any, int]] = [(parsed, 0)]
     while stack:
         node, depth = stack.pop()
         if not isinstance(node, Tree):
@@ -430,13 +395,13 @@ def check_text(text: str) -> None:
         )
 
 
-def parse_program(text: str) -> ast.Program:
+def parse_program(text: str) -> tree.Program:
     """Parse `.sched` text into a `Program`, or raise one `ScheduleError`."""
     check_text(text)
     try:
-        tree = _parser().parse(text)
-        _check_nesting(tree)  # a located error for deep expressions, before the Transformer recurses
-        return _ToAst().transform(tree)
+        parsed = parser().parse(text)
+        _check_nesting(parsed)  # a located error for deep expressions, before the Transformer recurses
+        return _ToTree().transform(parsed)
     except UnexpectedInput as error:
         raise _syntax_error(error, text) from None
     except VisitError as error:

@@ -4,11 +4,14 @@ Every check is done with exact sympy arithmetic over each piece's real interval:
 from critical points (`sympy.calculus.util.minimum`/`maximum`), monotonicity from the sign
 of the derivative, reality from the domains of roots, logarithms and divisions. Where sympy
 cannot find critical points, a rigorous enclosure by interval arithmetic is used instead
-and the certificate says so (see `smol_dsl.bounds`). Nothing is sampled.
+and the certificate says so (see `smol_dsl.language.prover`). Nothing is sampled. A shape
+whose pieces' extrema follow from its parameters (a bell, a random range) proves them itself
+(`Shape.prove`).
 
-The certificate also covers the float32 program that evaluates alpha: every `expr` segment's
-sub-expressions are proven to stay in float32's range, with an error bound
-(`smol_dsl.float32`), and alpha minus that error stays positive.
+The certificate also covers the float32 program that evaluates alpha: each shape bounds its
+error (`Shape.float32_error`); a formula's sub-expressions are proven to stay in float32's
+range, with an error bound (`smol_dsl.language.float32`), and alpha minus that error stays
+positive.
 """
 
 from __future__ import annotations
@@ -20,8 +23,10 @@ from typing import Any, Literal
 
 import sympy as sp
 
-from smol_dsl.bounds import (
-    ENCLOSURE_SECONDS,
+from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.language.float32 import SAFE_MAX, SAFE_MIN
+from smol_dsl.language.prover import (
+    Extrema,
     Monotone,
     VerificationTimeoutError,
     domain_violation,
@@ -30,16 +35,11 @@ from smol_dsl.bounds import (
     real,
     simplified,
     slope_sign,
-    time_limit,
 )
-from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.float32 import SAFE_MAX, SAFE_MIN, UNIT, Float32RangeError, float32_error
-from smol_dsl.symbolic import Piece, SymbolicProgram, SymbolicSegment, T, number_text, percent
+from smol_dsl.language.symbolic import Piece, SymbolicProgram, SymbolicSegment, T, number_text, percent
 
 MIN_TAIL = sp.Rational(1, 10)
 """The last 10% of the run must be at alpha = 1 (the paper's fair-comparison rule)."""
-BUILT_IN_ULPS = {"constant": 1, "tail": 0, "linear": 4, "random": 4, "bell": 32}
-"""float32 error of the built-in shapes, in units of roundoff of their largest value."""
 
 
 @dataclass(frozen=True)
@@ -155,17 +155,11 @@ def _check_coverage(segments: tuple[SymbolicSegment, ...]) -> None:
         )
 
 
-def _is_one(segment: SymbolicSegment) -> bool:
-    if segment.random is not None:
-        return bool(segment.random.low == 1 and segment.random.high == 1)
-    return all(is_zero(p.expr - 1) for p in segment.pieces)
-
-
 def tail_start(segments: tuple[SymbolicSegment, ...]) -> sp.Rational:
     """Where alpha becomes identically 1 for good; raise if that leaves under MIN_TAIL."""
     start = sp.Integer(1)
     for segment in reversed(segments):
-        if not _is_one(segment):
+        if not segment.shape.is_one(segment):
             break
         start = segment.start
     if 1 - start < MIN_TAIL:
@@ -190,7 +184,7 @@ def _value_at(segment: SymbolicSegment, where: Literal["start", "end"]) -> sp.Ex
 def _joins(segments: tuple[SymbolicSegment, ...]) -> tuple[JoinCertificate, ...]:
     joins = []
     for before, after in pairwise(segments):
-        if (before.random is not None and not _is_one(before)) or (after.random is not None and not _is_one(after)):
+        if any(s.draws is not None and not s.shape.is_one(s) for s in (before, after)):
             joins.append(JoinCertificate(float(after.start), False, None))
             continue
         jump = _value_at(after, "start") - _value_at(before, "end")
@@ -199,33 +193,24 @@ def _joins(segments: tuple[SymbolicSegment, ...]) -> tuple[JoinCertificate, ...]
 
 
 def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
-    where = f"segment {segment.index + 1} ({segment.describe_range()}, {segment.kind})"
-    kind = piece.label if segment.kind == "bell" else segment.kind
+    found, monotone = segment.shape.prove(segment, piece) or _prove(segment, piece)
+    error = segment.shape.float32_error(segment, piece, found.low, found.high)
+    return PieceCertificate(
+        segment.index + 1,
+        piece.label,
+        float(piece.start),
+        float(piece.end),
+        found.low,
+        found.high,
+        monotone,
+        found.exact,
+        error,
+    )
 
-    def certified(low: float, high: float, monotone: Monotone, exact: bool, error: float) -> PieceCertificate:
-        return PieceCertificate(
-            segment.index + 1, kind, float(piece.start), float(piece.end), low, high, monotone, exact, error
-        )
 
-    if segment.random is not None:
-        low, high = real(segment.random.low), real(segment.random.high)
-        assert low is not None and high is not None
-        monotone: Monotone = "constant" if low == high else "random"
-        return certified(low, high, monotone, True, _built_in_error("random", low, high))
-    if segment.bell is not None:
-        # Each half of a bell is a + (p - a) * (G(t) - G(s)) / (1 - G(s)) with G monotone on
-        # the half: it runs monotonically from its end value to the peak, so its extrema
-        # are those two values, exactly.
-        bell = segment.bell
-        edge = bell.start if piece.end == bell.peak_at else bell.end
-        low, high = sorted((real(edge), real(bell.peak)))
-        assert low is not None and high is not None
-        rising = piece.end == bell.peak_at
-        if low == high:
-            monotone = "constant"
-        else:
-            monotone = "increasing" if (real(bell.peak) > real(edge)) == rising else "decreasing"
-        return certified(low, high, monotone, True, _built_in_error("bell", low, high))
+def _prove(segment: SymbolicSegment, piece: Piece) -> tuple[Extrema, Monotone]:
+    """Extrema and monotonicity of a piece by sympy, or interval arithmetic where sympy fails."""
+    where = segment.describe()
     try:
         violation = domain_violation(piece.expr, piece.start, piece.end)
         expr = simplified(piece.expr)
@@ -252,50 +237,11 @@ def _verify_piece(segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
             segment.span,
             "check for a division by zero, or a log or square root of a negative number, inside the segment",
         )
-    if segment.kind == "expr":
-        error = _float32_error(segment, piece, where)
-    else:
-        error = _built_in_error(segment.kind, found.low, found.high)
-    return certified(found.low, found.high, monotone, found.exact, error)
-
-
-def _built_in_error(kind: str, low: float, high: float) -> float:
-    return BUILT_IN_ULPS.get(kind, 4) * UNIT * max(abs(low), abs(high))
-
-
-def _float32_error(segment: SymbolicSegment, piece: Piece, where: str) -> float:
-    """The float32 error bound of an `expr` piece, or a located error naming the part that fails."""
-    try:
-        with time_limit(ENCLOSURE_SECONDS):
-            return float32_error(piece.expr, piece.start, piece.end)
-    except Float32RangeError as failure:
-        part = _short(failure.node)
-        low, high = failure.where
-        at = "" if not failure.node.has(T) else f" for t in {low:.4g} .. {high:.4g}"
-        raise _fail(
-            f"{where} cannot be evaluated safely in float32: `{part}` {failure.reason}{at}",
-            segment.span,
-            "alpha is computed in 32-bit floats (JAX's default): keep every part of the expression between "
-            "about 1e-36 and 1e36 in size, and divisors and logarithm arguments well away from 0 "
-            "(e.g. rescale `(1e20*t)**2 / 1e40` as `t**2`)",
-        ) from None
-    except VerificationTimeoutError:
-        raise _fail(
-            f"could not bound the float32 evaluation of {where} within the time limit",
-            segment.span,
-            "simplify the expression or split the segment",
-        ) from None
-
-
-def _short(node: sp.Expr) -> str:
-    text = str(node)
-    if len(text) > 40 or any(len(word) > 12 for word in text.replace("*", " ").split()):
-        text = str(sp.N(node, 4))
-    return text if len(text) <= 60 else text[:57] + "..."
+    return found, monotone
 
 
 def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: list[PieceCertificate]) -> None:
-    where = f"segment {segment.index + 1} ({segment.describe_range()}, {segment.kind})"
+    where = segment.describe()
     lowest = min(pieces, key=lambda p: p.minimum)
     highest = max(pieces, key=lambda p: p.maximum)
     low, high = lowest.minimum, highest.maximum
@@ -358,14 +304,14 @@ def _check_rules(program: SymbolicProgram, segment: SymbolicSegment, pieces: lis
         if broken:
             first_value = _value_at(segment, "start")
             last_value = _value_at(segment, "end")
-            if segment.random is None and all(p.monotone == "unknown" for p in broken):
+            if all(p.monotone == "unknown" for p in broken):
                 raise _fail(
                     f"could not prove that {where} is {segment.monotone}",
                     segment.span,
                     "neither sympy nor interval arithmetic could decide the sign of the derivative; "
                     f"simplify the expression, split the segment, or remove `{segment.monotone}`",
                 )
-            if segment.random is not None:
+            if any(p.monotone == "random" for p in broken):
                 detail = "a random segment is not monotone"
             else:
                 detail = (

@@ -1,0 +1,1 @@
+"""The `.sched` schedule language: text -> syntax tree -> exact sympy -> proof -> JAX."""
