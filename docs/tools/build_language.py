@@ -27,6 +27,9 @@ they are, and any block may be indented (inside a list item):
 ```python run
     Runs the code and shows it as a ```python block. It must be followed by an empty
     ```output block, which becomes a ```text block holding what the code printed.
+```python markdown
+    Runs the code and puts what it printed in the page, as Markdown (a table, say); the
+    code itself is not shown.
 
 The output file is written even when an example misbehaves (a check with the wrong exit
 status, a Python error, an internal error or traceback from smol-dsl); each such problem
@@ -143,6 +146,8 @@ class Builder:
                 new = self.check(attrs)
             elif lang == "console":
                 new = self.console(body)
+            elif lang == "python" and "markdown" in attrs:
+                new = self.python(body)[1:-1]  # unfenced
             elif lang == "python" and "run" in attrs:
                 new = ["```python", *body, "```"]
                 while not lines[i].strip():  # the blank lines before ```output
