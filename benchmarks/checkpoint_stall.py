@@ -4,7 +4,7 @@ A paper-preset ant_omni archive (1024 cells of [256, 256] policies, ~307 MB) is 
 R times (default 8 runs, ~2.5 GB) on the local devices, as a sweep holds its archives, and
 its checkpoint is written four ways, each twice (the better time kept):
 
-- sync_npz: `save_sweep_checkpoint`, the whole write in the training thread (before);
+- sync_npz: `save_checkpoint`, the whole write in the training thread (before);
 - async_npz: `CheckpointWriter.offer`, which copies the archives to host memory and writes
   the `.npz` in a background thread (what runs and sweeps do now); `stall` is the time
   until training can go on, `total` until the file is on disk;
@@ -44,9 +44,9 @@ def main() -> None:
     import jax
     import jax.numpy as jnp
 
-    from smol_dsl.runner.algorithm import empty_archive
-    from smol_dsl.runner.checkpoint import CheckpointWriter, RunState, save_sweep_checkpoint, sweep_checkpoint_arrays
-    from smol_dsl.runner.sweep import stack_runs
+    from smol_dsl.runner.checkpoint import CheckpointWriter, RunState, checkpoint_arrays, save_checkpoint
+    from smol_dsl.runner.engine import stack_runs
+    from smol_dsl.runner.map_elites import empty_archive
     from smol_dsl.tasks import make_task
 
     task = make_task("ant_omni", episode_length=10, hidden_layer_sizes=(256, 256))
@@ -60,7 +60,7 @@ def main() -> None:
     )
     archives = jax.block_until_ready(stack_runs([one] * args.runs))
     keys = jax.random.split(jax.random.key(3), args.runs)
-    states = [RunState(None, None, None, 10, 1, 1000, 0, 0, [{"generation": g} for g in range(50)])] * args.runs
+    states = [RunState(10, 1, 1000, 0, 0, [{"generation": g} for g in range(50)])] * args.runs
     size = sum(x.nbytes for x in jax.tree.leaves(archives))
     print(f"devices: {len(jax.local_devices())} {jax.local_devices()[0].platform}")
     print(f"checkpoint_gb: {size / 1e9:.2f} ({args.runs} runs x {size / args.runs / 1e6:.0f} MB)")
@@ -97,7 +97,7 @@ def main() -> None:
         for attempt in range(2):
             path = root / f"sync-{attempt}.npz"
             started = time.perf_counter()
-            save_sweep_checkpoint(path, archives, keys, states)
+            save_checkpoint(path, archives, keys, states)
             results["sync_npz_stall_s"] = min(results.get("sync_npz_stall_s", 1e9), time.perf_counter() - started)
             path.unlink()
 
@@ -106,7 +106,7 @@ def main() -> None:
             writer = CheckpointWriter()
             path = root / f"async-{attempt}.npz"
             started = time.perf_counter()
-            writer.offer(path, lambda: sweep_checkpoint_arrays(archives, keys, states))
+            writer.offer(path, lambda: checkpoint_arrays(archives, keys, states))
             stall = time.perf_counter() - started
             rate = compute_while(writer.writing)
             writer.flush()

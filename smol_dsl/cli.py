@@ -308,10 +308,9 @@ def _run(args: argparse.Namespace) -> int:
         print(error, file=sys.stderr)
         return EXIT_USAGE
     from smol_dsl.runner import check_config, run_experiment
+    from smol_dsl.runner.directories import check_out_dir, non_empty, run_name
     from smol_dsl.runner.footprint import fit_sweep
     from smol_dsl.runner.progress import summary_line
-    from smol_dsl.runner.run import check_out_dir, non_empty
-    from smol_dsl.runner.sweep import run_name
 
     config = _config(args, seed=args.seed)
     try:
@@ -330,7 +329,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     import jax
 
-    fit = partial(fit_sweep, config, 1, [config.seed], jax.devices()[:1])
+    fit = partial(fit_sweep, config, 1, [config.seed], jax.local_devices())
     _announce_footprint("run", config, fit, out, args.dry_run)
     if args.dry_run:
         return EXIT_OK
@@ -380,9 +379,9 @@ def _sweep(args: argparse.Namespace) -> int:
             print(error, file=sys.stderr)
         return EXIT_USAGE
     from smol_dsl.runner import check_config, run_sweep
+    from smol_dsl.runner.directories import check_out_dir, non_empty
     from smol_dsl.runner.footprint import fit_sweep
     from smol_dsl.runner.progress import sweep_summary
-    from smol_dsl.runner.run import check_out_dir, non_empty
 
     config = _config(args, seed=None)
     try:

@@ -10,9 +10,8 @@ import pytest
 
 from smol_dsl.cli import main
 from smol_dsl.runner import RunError, preset_config
-from smol_dsl.runner.batched import BatchedMapElites, stack_runs
+from smol_dsl.runner.engine import Engine, stack_runs
 from smol_dsl.runner.footprint import DeviceMemory, device_memory, fit_sweep, plan_footprint
-from smol_dsl.runner.run import start_key
 from smol_dsl.tasks import make_task, task_sizes
 
 PAPER_SCHEDULES = [
@@ -61,11 +60,11 @@ def test_batch_estimate_is_within_twice_the_compiled_programs_memory():
     """The arithmetic against XLA's own figure for the compiled generation program."""
     config = preset_config("walker2d", "quick", batch_size=32, episode_length=20, num_centroids=64)
     task = make_task("walker2d", episode_length=20, hidden_layer_sizes=config.hidden_layer_sizes)
-    engine = BatchedMapElites(
+    engine = Engine(
         task, batch_size=32, iso_sigma=0.005, line_sigma=0.05, devices=jax.devices()[:1], runs_per_step=1, num_runs=1
     )
     archives = engine.empty_archives(jax.random.uniform(jax.random.key(0), (1, 64, 2)))
-    starts = engine.put(stack_runs([task.start_state(start_key(0))]))
+    starts = engine.put(stack_runs([task.episode_start(0)]))
     alphas = engine.put(jnp.ones((1,), jnp.float32))
     keys = engine.put(jax.random.split(jax.random.key(1), 1))
     compiled = engine._step.lower(archives, alphas, starts, keys).compile().memory_analysis()

@@ -19,13 +19,14 @@ import pytest
 
 from smol_dsl.cli import main
 from smol_dsl.errors import UserInputError
+from smol_dsl.results import rundir as rundir_module
+from smol_dsl.results.rundir import LOCK_FILE
 from smol_dsl.runner import RunError, preset_config, run_experiment, run_sweep, schedule_key
 from smol_dsl.runner import checkpoint as checkpoint_module
-from smol_dsl.runner import run as run_module
-from smol_dsl.runner.checkpoint import CheckpointWriter, atomic_write, load_checkpoint, load_sweep_checkpoint
-from smol_dsl.runner.lock import LOCK_FILE, DirectoryLock
-from smol_dsl.runner.run import prepare_run_directory
-from smol_dsl.runner.sweep import _prepare_sweep_directory, plan_sweep
+from smol_dsl.runner.checkpoint import CheckpointWriter, atomic_write, load_checkpoint
+from smol_dsl.runner.directories import prepare_run_directory, prepare_sweep_directory
+from smol_dsl.runner.lock import DirectoryLock
+from smol_dsl.runner.sweep import plan_sweep
 from smol_dsl.seeds import SEED_MAX, SeedError, check_seed
 from smol_dsl.tasks import make_task
 
@@ -224,7 +225,7 @@ def test_full_disk_while_checkpointing_then_resume(reference, tmp_path, monkeypa
     assert f"the last checkpoint, {out / 'checkpoint.npz'}, is intact" in err and "--resume" in err
     assert temporaries(out) == [] and not (out / "archive.npz").exists()
     with np.load(out / "checkpoint.npz") as data:
-        saved = json.loads(str(data["progress"]))
+        (saved,) = json.loads(str(data["progress"]))
     assert saved["generation"] == 0  # the initial population's, whole
     assert len((out / "metrics.csv").read_text().splitlines()) > 1 + len(saved["rows"])  # rows after it
     with open(out / "metrics.csv", "a") as file:  # and rows no checkpoint covers, twice
@@ -268,9 +269,9 @@ class FullAfter:
 
 def test_full_disk_while_writing_metrics_then_resume_without_metrics(reference, library, tmp_path, monkeypatch):
     out = tmp_path / "run"
-    full = FullAfter(run_module.csv.DictWriter)
+    full = FullAfter(rundir_module.csv.DictWriter)
     full.rows = 8
-    monkeypatch.setattr(run_module.csv, "DictWriter", full)
+    monkeypatch.setattr(rundir_module.csv, "DictWriter", full)
     locked = []
 
     def progress(row, total):  # the run holds its directory's lock while it trains
@@ -294,7 +295,7 @@ def test_full_disk_while_writing_metrics_then_resume_without_metrics(reference, 
 
 def test_full_disk_while_setting_up_leaves_nothing(library, tmp_path, monkeypatch):
     out = tmp_path / "run"
-    real = run_module.atomic_write
+    real = rundir_module.atomic_write
     written = []
 
     def atomic(path, write):
@@ -303,7 +304,7 @@ def test_full_disk_while_setting_up_leaves_nothing(library, tmp_path, monkeypatc
         written.append(path)
         return real(path, write)
 
-    monkeypatch.setattr(run_module, "atomic_write", atomic)
+    monkeypatch.setattr(rundir_module, "atomic_write", atomic)
     with pytest.raises(RunError, match=r"schedule.sched: No space left on device; nothing was started"):
         run_experiment("walker2d", library["human"], CONFIG, out_dir=out)
     assert [p.name for p in out.iterdir() if p.name != LOCK_FILE] == []  # config.json removed again
@@ -358,14 +359,14 @@ def test_a_checkpoint_shaped_for_another_policy_is_refused(reference):
     with pytest.raises(
         RunError, match=r"its genotypes/params/Dense_0/bias has shape \(16, 64\), but this one needs \(16, 8\)"
     ):
-        load_checkpoint(reference, template, 16, 2)
+        load_checkpoint(reference / "checkpoint.npz", template, 1, 16, 2)
 
 
 def test_sweep_checkpoint_that_is_not_one(tmp_path):
     path = tmp_path / "sweep-checkpoint.npz"
     path.write_bytes(b"not a zip file at all")
     with pytest.raises(RunError, match="cannot be resumed from: it is damaged"):
-        load_sweep_checkpoint(path, {"w": np.zeros((1, 3))}, 2, 16)
+        load_checkpoint(path, {"w": np.zeros((1, 3))}, 2, 16)
 
 
 @pytest.mark.parametrize(
@@ -382,7 +383,7 @@ def test_resume_with_a_damaged_config_json(reference, tmp_path, capsys, text, pr
 def test_resume_of_a_sweep_as_a_run_and_of_a_run_as_a_sweep(reference, library, tmp_path, capsys):
     out = tmp_path / "sweep"
     every = plan_sweep([library["human"]], [0], CONFIG)
-    _prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
+    prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
     code, err = cli([*RUN, "--out", str(out), "--resume"], capsys)
     assert code == 2 and f"{out} is a sweep directory, not a run's" in err
     code, err = cli(["sweep", "walker2d", "human", "--seeds", "1", *FLAGS, "--out", str(reference), "--resume"], capsys)
@@ -433,7 +434,7 @@ def test_a_second_sweep_process_is_refused_but_parts_share_a_sweep(library, tmp_
 
     def prepare(part, parts, resume=False):
         name = "sweep-checkpoint.npz" if parts == 1 else f"sweep-checkpoint-{part}-of-{parts}.npz"
-        return _prepare_sweep_directory(out, every, every[part::parts], CONFIG, resume, parts > 1, name)
+        return prepare_sweep_directory(out, every, every[part::parts], CONFIG, resume, parts > 1, name)
 
     with prepare(0, 2), prepare(1, 2):  # two processes of one sweep share its directory
         with pytest.raises(RunError, match=re.escape(f"{out / every[0].name} is in use by another smol-dsl process")):
@@ -452,9 +453,9 @@ def test_a_second_sweep_process_is_refused_but_parts_share_a_sweep(library, tmp_
 def test_a_sweep_resumed_after_a_run_directory_was_deleted_sets_it_up_again(library, tmp_path):
     out = tmp_path / "sweep"
     every = plan_sweep([library["human"]], [0, 1], CONFIG)
-    _prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
+    prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
     shutil.rmtree(out / every[1].name)
-    _prepare_sweep_directory(out, every, every, CONFIG, True, False, "sweep-checkpoint.npz").close()
+    prepare_sweep_directory(out, every, every, CONFIG, True, False, "sweep-checkpoint.npz").close()
     assert (out / every[1].name / "config.json").is_file()
 
 
@@ -463,12 +464,12 @@ def test_a_sweep_resumed_with_another_number_of_processes_is_refused(library, tm
     every = plan_sweep([library["human"]], [0, 1], CONFIG)
     for part in (0, 1):
         name = f"sweep-checkpoint-{part}-of-2.npz"
-        _prepare_sweep_directory(out, every, every[part::2], CONFIG, False, True, name).close()
+        prepare_sweep_directory(out, every, every[part::2], CONFIG, False, True, name).close()
         (out / name).write_bytes(b"")  # stands for the checkpoint each process wrote
     with pytest.raises(RunError, match=r"was checkpointed by 2 processes \(--num-processes 2\).*not one process"):
-        _prepare_sweep_directory(out, every, every, CONFIG, True, False, "sweep-checkpoint.npz")
+        prepare_sweep_directory(out, every, every, CONFIG, True, False, "sweep-checkpoint.npz")
     (out / "sweep-checkpoint-1-of-2.npz").unlink()  # process 1 was killed before its first checkpoint:
-    _prepare_sweep_directory(out, every, every[1::2], CONFIG, True, True, "sweep-checkpoint-1-of-2.npz").close()
+    prepare_sweep_directory(out, every, every[1::2], CONFIG, True, True, "sweep-checkpoint-1-of-2.npz").close()
 
 
 # 3. seeds that would repeat another seed's stream ----------------------------------------------
@@ -536,13 +537,13 @@ def test_a_refused_resume_names_each_differing_setting(reference, tmp_path, caps
 def test_a_refused_sweep_resume_names_schedules_seeds_and_settings(library, tmp_path):
     out = tmp_path / "sweep"
     every = plan_sweep([library["human"], library["smol"]], [0, 1, 2], CONFIG)
-    _prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
+    prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
     other = preset_config(
         "walker2d", "quick", evaluations=96, batch_size=8, num_phases=10, num_centroids=32, episode_length=10
     )
     changed = plan_sweep([library["human"]], [0, 1], other)
     with pytest.raises(RunError) as caught:
-        _prepare_sweep_directory(out, changed, changed, other, True, False, "sweep-checkpoint.npz")
+        prepare_sweep_directory(out, changed, changed, other, True, False, "sweep-checkpoint.npz")
     message = str(caught.value)
     assert "--centroids: the sweep was started with 16, not 32" in message
     assert "SCHEDULE: the sweep was started with human, smol, not human" in message

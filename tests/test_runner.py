@@ -17,7 +17,8 @@ import pytest
 
 import smol_dsl
 from smol_dsl.runner import RunError, check_config, load_archive, preset_config, run_experiment, schedule_key
-from smol_dsl.runner.algorithm import PhasedMapElites, cvt_centroids
+from smol_dsl.runner.engine import Engine, stack_runs
+from smol_dsl.runner.map_elites import cvt_centroids
 from smol_dsl.tasks import make_task
 
 SMALL = dict(
@@ -38,12 +39,7 @@ def small_config(**overrides):
 @pytest.fixture(scope="session")
 def task():
     config = small_config()
-    return make_task(
-        "walker2d",
-        episode_length=config.episode_length,
-        hidden_layer_sizes=config.hidden_layer_sizes,
-        init_key=jax.random.fold_in(jax.random.key(config.seed), 0x7A5C),
-    )
+    return make_task("walker2d", episode_length=config.episode_length, hidden_layer_sizes=config.hidden_layer_sizes)
 
 
 @pytest.fixture(scope="session")
@@ -118,7 +114,7 @@ def test_archive_elites_replay_to_their_fitness(human_run, task):
     archive = load_archive(human_run.out_dir)
     best = archive.best_cell
     params = jax.tree.map(lambda x: jnp.asarray(x)[None], archive.elite(best))
-    fitness, descriptor, _ = task.scoring_fn()(params, jnp.float32(1.0), jax.random.key(0))
+    fitness, descriptor = task.scoring_fn()(params, jnp.float32(1.0), task.episode_start(human_run.config.seed))
     assert float(fitness[0]) == pytest.approx(float(archive.fitnesses[best]), rel=1e-5)
     np.testing.assert_allclose(np.asarray(descriptor[0]), archive.descriptors[best], atol=1e-6)
 
@@ -166,50 +162,65 @@ def test_extinction_of_every_elite_reseeds(task):
             assert row["coverage"] == 0.0
 
 
-def test_extinction_removes_about_p_of_the_elites(task):
-    algorithm = PhasedMapElites(
-        task.scoring_fn(), task.init_policies, batch_size=16, qd_offset=0.0, iso_sigma=0.005, line_sigma=0.05
+def one_run_engine(task, batch_size=16):
+    """The engine for one run on one device, and that run's inputs (alpha 1, seed 0)."""
+    engine = Engine(
+        task, batch_size=batch_size, iso_sigma=0.005, line_sigma=0.05, devices=jax.devices()[:1], num_runs=1
     )
+    start = engine.put(stack_runs([task.episode_start(0)]))
+    return engine, start, engine.put(jnp.ones((1,), jnp.float32))
+
+
+def filled(repertoire):
+    return int(np.sum(np.asarray(repertoire.fitnesses) > -np.inf))
+
+
+def test_extinction_removes_about_p_of_the_elites(task):
+    engine, start, alpha = one_run_engine(task)
     centroids = cvt_centroids(256, task.descriptor_low, task.descriptor_high, 5000, jax.random.key(0))
-    archive, state, _, _ = algorithm.init(centroids, jnp.float32(1.0), jax.random.key(1))
-    for k in range(4):
-        archive, state, _, _ = algorithm.reseed(archive, state, jnp.float32(1.0), jax.random.key(10 + k))
+    archive = engine.empty_archives(centroids[None])
+    for k in range(5):  # fresh policies into the empty archive, then four generations of offspring
+        archive, *_ = engine.step(archive, alpha, start, engine.put(jax.random.key(10 + k)[None]))
 
-    def filled(repertoire):
-        return int(np.sum(np.asarray(repertoire.fitnesses) > -np.inf))
+    def reevaluated(extinction, seed):
+        rate = engine.put(jnp.full((1,), extinction, jnp.float32))
+        survivors, _, _ = engine.reevaluate(archive, alpha, start, rate, engine.put(jax.random.key(seed)[None]))
+        return filled(survivors)
 
-    everyone = filled(algorithm.reevaluate(archive, jnp.float32(1.0), 0.0, jax.random.key(0))[0])
+    everyone = reevaluated(0.0, 0)
     assert everyone == filled(archive) >= 8  # same alpha, same cells: nobody is lost but by extinction
-    survivors = [
-        filled(algorithm.reevaluate(archive, jnp.float32(1.0), 0.5, jax.random.key(k))[0]) for k in range(1, 31)
-    ]
+    survivors = [reevaluated(0.5, k) for k in range(1, 31)]
     assert 0.38 < np.mean(survivors) / everyone < 0.62
-    assert filled(algorithm.reevaluate(archive, jnp.float32(1.0), 1.0, jax.random.key(0))[0]) == 0
+    assert reevaluated(1.0, 0) == 0
 
 
-def test_non_finite_results_never_enter_the_archive(task):
-    real_score = task.scoring_fn()
+def test_non_finite_results_never_enter_the_archive(task, monkeypatch):
+    real_score = task.score
 
-    def poisoned(params, alpha, key):
-        fitnesses, descriptors, extra = real_score(params, alpha, key)
+    def poisoned(params, alpha, start):
+        fitnesses, descriptors = real_score(params, alpha, start)
         bad = jnp.arange(fitnesses.shape[0]) % 3 == 0
         fitnesses = jnp.where(bad, jnp.nan, fitnesses)
         descriptors = jnp.where((jnp.arange(fitnesses.shape[0]) % 3 == 1)[:, None], jnp.inf, descriptors)
-        return fitnesses, descriptors, extra
+        return fitnesses, descriptors
 
-    algorithm = PhasedMapElites(
-        poisoned, task.init_policies, batch_size=16, qd_offset=0.0, iso_sigma=0.005, line_sigma=0.05
-    )
+    import dataclasses
+
+    poisoned_task = dataclasses.replace(task)
+    object.__setattr__(poisoned_task, "score", poisoned)
+    engine, start, alpha = one_run_engine(poisoned_task)
     centroids = cvt_centroids(32, task.descriptor_low, task.descriptor_high, 2000, jax.random.key(0))
-    repertoire, state, _, evaluation = algorithm.init(centroids, jnp.float32(1.0), jax.random.key(1))
-    assert evaluation.non_finite == 11  # indices 0, 1, 3, 4, ... of 16: two of every three
-    repertoire, state, _, evaluation = algorithm.generation(repertoire, state, jnp.float32(1.2), jax.random.key(2))
-    assert evaluation.non_finite == 11
-    repertoire, evaluation = algorithm.reevaluate(repertoire, jnp.float32(0.8), 0.0, jax.random.key(3))
-    fitnesses = np.asarray(repertoire.fitnesses).reshape(-1)
-    filled = fitnesses > -np.inf
-    assert np.all(np.isfinite(fitnesses[filled]))
-    assert np.all(np.isfinite(np.asarray(repertoire.descriptors)[filled]))
+    archive, _, dropped, reseeded = engine.step(
+        engine.empty_archives(centroids[None]), alpha, start, engine.put(jax.random.key(1)[None])
+    )
+    assert bool(reseeded[0]) and int(dropped[0]) == 11  # indices 0, 1, 3, 4, ... of 16: two of every three
+    archive, _, dropped, reseeded = engine.step(archive, alpha * 1.2, start, engine.put(jax.random.key(2)[None]))
+    assert not bool(reseeded[0]) and int(dropped[0]) == 11
+    rate = engine.put(jnp.zeros((1,), jnp.float32))
+    archive, _, _ = engine.reevaluate(archive, alpha * 0.8, start, rate, engine.put(jax.random.key(3)[None]))
+    fitnesses = np.asarray(archive.fitnesses).reshape(-1)
+    assert np.all(np.isfinite(fitnesses[fitnesses > -np.inf]))
+    assert np.all(np.isfinite(np.asarray(archive.descriptors).reshape(-1, 2)[fitnesses > -np.inf]))
 
 
 def test_config_checks(library):

@@ -1,4 +1,4 @@
-"""The alpha-aware Brax tasks: QDax parity at alpha = 1, gear scaling, one compilation."""
+"""The alpha-aware Brax tasks: QDax parity at alpha = 1, gear scaling, one compilation, the registry."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from smol_dsl.tasks import make_task
+from smol_dsl.tasks import TaskSpec, make_task, register, task_names, task_spec
+from smol_dsl.tasks.base import deterministic_init_state, scale_gear
 
 EPISODE = 50
 BATCH = 8
@@ -15,12 +16,17 @@ BATCH = 8
 
 @pytest.fixture(scope="session")
 def walker():
-    return make_task("walker2d", episode_length=EPISODE, init_key=jax.random.key(3))
+    return make_task("walker2d", episode_length=EPISODE)
 
 
 @pytest.fixture(scope="session")
 def cheetah():
-    return make_task("halfcheetah", episode_length=EPISODE, init_key=jax.random.key(3))
+    return make_task("halfcheetah", episode_length=EPISODE)
+
+
+def qdax_start(task):
+    """The episode start QDax's scoring function uses for key 3."""
+    return deterministic_init_state(task.env, jax.random.key(3))
 
 
 def _qdax_scores(qdax_name, task, params, gear_scale=None):
@@ -42,7 +48,7 @@ def _qdax_scores(qdax_name, task, params, gear_scale=None):
 def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
     task = request.getfixturevalue(fixture)
     params = task.init_policies(jax.random.key(1), BATCH)
-    fitnesses, descriptors, _ = task.scoring_fn()(params, jnp.float32(1.0), jax.random.key(0))
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.0), qdax_start(task))
     expected_fitnesses, expected_descriptors = _qdax_scores(qdax_name, task, params)
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
@@ -52,7 +58,7 @@ def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
 @pytest.mark.parametrize("alpha", [0.5, 1.5])
 def test_alpha_equals_plain_brax_env_with_scaled_gear(walker, alpha):
     params = walker.init_policies(jax.random.key(2), BATCH)
-    fitnesses, descriptors, _ = walker.scoring_fn()(params, jnp.float32(alpha), jax.random.key(0))
+    fitnesses, descriptors = walker.scoring_fn()(params, jnp.float32(alpha), qdax_start(walker))
     expected_fitnesses, expected_descriptors = _qdax_scores("walker2d_uni", walker, params, gear_scale=alpha)
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
@@ -61,7 +67,8 @@ def test_alpha_equals_plain_brax_env_with_scaled_gear(walker, alpha):
 def test_alpha_changes_the_physics_without_recompiling(walker):
     params = walker.init_policies(jax.random.key(4), BATCH)
     score = walker.scoring_fn()
-    results = [np.asarray(score(params, jnp.float32(alpha), jax.random.key(0))[0]) for alpha in (0.6, 1.0, 1.4)]
+    start = walker.episode_start(0)
+    results = [np.asarray(score(params, jnp.float32(alpha), start)[0]) for alpha in (0.6, 1.0, 1.4)]
     assert score._cache_size() == 1
     assert not np.allclose(results[0], results[2])
 
@@ -69,7 +76,7 @@ def test_alpha_changes_the_physics_without_recompiling(walker):
 def test_ant_omni_scores_final_position_and_energy():
     task = make_task("ant_omni", episode_length=20, hidden_layer_sizes=(16, 16))
     params = task.init_policies(jax.random.key(0), 4)
-    fitnesses, descriptors, _ = task.scoring_fn()(params, jnp.float32(1.2), jax.random.key(0))
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.2), task.episode_start(0))
     assert descriptors.shape == (4, 2) and fitnesses.shape == (4,)
     assert np.all(np.isfinite(fitnesses)) and np.all(np.abs(np.asarray(descriptors)) <= 30.0)
     # fitness is the healthy bonus minus control and contact costs: at most 1 per step
@@ -86,6 +93,85 @@ def test_policies_are_tanh_mlps_with_the_papers_sizes(walker):
 def test_unknown_task():
     with pytest.raises(ValueError, match="walker2d, halfcheetah, ant_omni"):
         make_task("hopper")
+    with pytest.raises(ValueError, match="unknown task 'hopper'"):
+        task_spec("hopper")
+
+
+def test_every_spec_is_complete_and_matches_its_task():
+    from smol_dsl.runner.config import preset_config
+
+    for name in task_names():
+        spec = task_spec(name)
+        assert spec.help and spec.default_metric in ("max_fitness", "coverage", "qd_score")
+        for preset in ("quick", "paper"):
+            assert preset_config(name, preset).batch_size == spec.presets[preset]["batch_size"]
+        task = make_task(name, episode_length=5, hidden_layer_sizes=(4,))
+        assert task.spec is spec and task.descriptor_size == len(spec.descriptor_low)
+        assert task.qd_offset == pytest.approx(spec.reward_offset * 5)
+
+
+def test_the_episode_start_comes_from_the_seed_alone(walker):
+    other = make_task("walker2d", episode_length=EPISODE)
+    for seed in (0, 7):
+        a, b = walker.episode_start(seed), other.episode_start(seed)
+        np.testing.assert_array_equal(np.asarray(a.obs), np.asarray(b.obs))
+    assert not np.array_equal(np.asarray(walker.episode_start(0).obs), np.asarray(walker.episode_start(7).obs))
+
+
+def test_modulate_is_the_hook_that_changes_the_body(walker):
+    """A task whose `modulate` scales the gear by 2 alpha equals the standard task at 2 alpha."""
+    import dataclasses
+
+    doubled = dataclasses.replace(walker, modulate=lambda sys, alpha: scale_gear(sys, 2 * alpha))
+    params = walker.init_policies(jax.random.key(5), BATCH)
+    start = walker.episode_start(0)
+    expected = walker.scoring_fn()(params, jnp.float32(1.2), start)
+    actual = doubled.scoring_fn()(params, jnp.float32(0.6), start)
+    np.testing.assert_allclose(np.asarray(actual[0]), np.asarray(expected[0]), rtol=1e-5, atol=1e-5)
+
+
+def test_a_task_registers_in_one_line_and_builds_lazily():
+    spec = TaskSpec(
+        name="walker2d_test_copy",
+        help="walker2d under another name",
+        environment="walker2d",
+        factory="smol_dsl.tasks.feet:make",
+        descriptor_low=(0.0, 0.0),
+        descriptor_high=(1.0, 1.0),
+        reward_offset=1.413,
+        default_metric="coverage",
+        presets=task_spec("walker2d").presets,
+        details=task_spec("walker2d").details,
+    )
+    register(spec)
+    assert "walker2d_test_copy" in task_names()
+    assert make_task("walker2d_test_copy", episode_length=5, hidden_layer_sizes=(4,)).name == "walker2d_test_copy"
+    with pytest.raises(ValueError, match="already registered"):
+        register(dataclasses_replace(spec, help="another"))
+
+
+def dataclasses_replace(spec, **changes):
+    import dataclasses
+
+    return dataclasses.replace(spec, **changes)
+
+
+REGISTRY_PROBE = """
+import sys
+import smol_dsl.tasks, smol_dsl.runner.config
+from smol_dsl.tasks import task_spec
+task_spec("ant_omni").descriptor_high
+print(sorted(m for m in ("jax", "brax", "qdax", "flax", "mujoco") if m in sys.modules))
+"""
+
+
+def test_the_registry_and_run_settings_import_no_jax_or_brax():
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", REGISTRY_PROBE], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "[]\n"
 
 
 QUIET_PROBE = """

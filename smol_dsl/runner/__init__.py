@@ -1,9 +1,28 @@
-"""The bundled Brax MAP-Elites runner: phased training under a schedule of actuator strength."""
+"""The bundled Brax MAP-Elites runner: phased training under a schedule of actuator strength.
 
-from smol_dsl.runner.checkpoint import Archive, load_archive
-from smol_dsl.runner.config import PRESETS, RunConfig, check_config, preset_config
-from smol_dsl.runner.run import RunError, RunResult, run_experiment, schedule_key
-from smol_dsl.runner.sweep import run_sweep
+Modules, one concept each: `config` (RunConfig and presets; no JAX), `map_elites` (one
+run's step on QDax), `engine` (that step over runs and devices), `training` (the phase
+loop, metrics, checkpoints, resume), `run` and `sweep` (the two entry points),
+`directories` (setting up, locking and checking run and sweep directories), `checkpoint`,
+`lock`, `footprint` (memory), `progress` (the bar). Importing this package imports JAX
+only when an entry point is used.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+from smol_dsl.runner.config import PRESETS, RunConfig, RunError, check_config, preset_config
+
+_LAZY = {
+    "Archive": "smol_dsl.results.rundir",
+    "load_archive": "smol_dsl.results.rundir",
+    "RunResult": "smol_dsl.runner.training",
+    "schedule_key": "smol_dsl.runner.training",
+    "run_experiment": "smol_dsl.runner.run",
+    "run_sweep": "smol_dsl.runner.sweep",
+}
 
 __all__ = [
     "PRESETS",
@@ -18,3 +37,9 @@ __all__ = [
     "run_sweep",
     "schedule_key",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,8 @@
-"""Atomic checkpoints of a run, and the final archive's `.npz` layout.
+"""Atomic checkpoints of runs trained together, and the final archive's `.npz` layout.
+
+One format for `run` and `sweep`: the archives of R runs stacked along a runs axis (R = 1
+for a run directory's checkpoint.npz), each run's key, and its progress (counters and
+metrics rows) as JSON.
 
 A checkpoint is written to a temporary file in the run directory, flushed to disk and
 renamed over the previous one, so a run killed at any moment leaves either the old or the
@@ -9,10 +13,9 @@ of archives, and training goes on while it reaches the disk.
 
 from __future__ import annotations
 
-import contextlib
+import dataclasses
 import errno
 import json
-import os
 import threading
 import zipfile
 from collections.abc import Callable
@@ -24,35 +27,10 @@ import jax
 import numpy as np
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 
+from smol_dsl.results.rundir import write_npz
 from smol_dsl.runner.config import RunError
 
-CHECKPOINT = "checkpoint.npz"
-
-
-def atomic_write(path: Path, write: Any) -> None:
-    """Call write(file) on a temporary file, fsync it, and rename it over path.
-
-    If anything fails (a full disk, say), the temporary file is removed and `path` is left as
-    it was; an OSError is raised with `filename` set to `path`, whatever file the OS named.
-    """
-    temporary = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # processes may share a directory
-    try:
-        with open(temporary, "wb") as file:
-            write(file)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException as error:
-        with contextlib.suppress(OSError):
-            temporary.unlink(missing_ok=True)
-        if isinstance(error, OSError) and error.filename != str(path):
-            raise OSError(error.errno, error.strerror or str(error), str(path)) from error
-        raise
-    directory = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
+KEYS = "keys"
 
 
 def _leaf_names(tree: Any) -> list[str]:
@@ -69,11 +47,9 @@ def _key_name(key: Any) -> str:
 
 @dataclass
 class RunState:
-    """Everything a run needs to continue exactly where it stopped."""
+    """One run's progress: what, besides its archive and key, it needs to continue exactly
+    where it stopped (its counters and every metrics row so far)."""
 
-    repertoire: MapElitesRepertoire
-    emitter_state: Any
-    key: jax.Array
     generation: int  # the last generation done (0: the initial population)
     phase: int
     evaluations: int
@@ -95,7 +71,7 @@ def host_copy(leaf: Any) -> np.ndarray:
     return array.copy() if on_cpu else array
 
 
-def _repertoire_arrays(repertoire: MapElitesRepertoire) -> dict[str, np.ndarray]:
+def archive_arrays(repertoire: MapElitesRepertoire) -> dict[str, np.ndarray]:
     """An archive's arrays by name: `genotypes/<param path>`, fitnesses, descriptors, centroids."""
     genotypes = repertoire.genotypes
     arrays = {
@@ -122,48 +98,7 @@ def _repertoire_from(data: Any, genotype_template: Any) -> MapElitesRepertoire:
 
 
 def _progress(state: RunState) -> dict[str, Any]:
-    return {
-        "generation": state.generation,
-        "phase": state.phase,
-        "evaluations": state.evaluations,
-        "reevaluations": state.reevaluations,
-        "non_finite": state.non_finite,
-        "finished": state.finished,
-        "rows": state.rows,
-    }
-
-
-def _state(progress: dict[str, Any], repertoire: MapElitesRepertoire | None, key: jax.Array | None) -> RunState:
-    return RunState(repertoire=repertoire, emitter_state=None, key=key, **progress)
-
-
-def write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """Write arrays atomically as an uncompressed `.npz`."""
-    atomic_write(path, lambda file: np.savez(file, **arrays))
-
-
-def run_owner(config: Any, schedule: Any) -> dict[str, Any]:
-    """What a run's checkpoint records about the run that wrote it: its settings and schedule
-    text, so that a checkpoint copied from another run is refused rather than continued."""
-    return {"config": json.loads(config.to_json()), "schedule": schedule.source}
-
-
-def checkpoint_arrays(state: RunState, owner: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
-    """A run's checkpoint: its archive, key and progress (and `owner`, the run it belongs
-    to), copied to host memory."""
-    if state.emitter_state is not None:
-        raise NotImplementedError("only stateless emitters (iso+line) are checkpointed")
-    arrays = _repertoire_arrays(state.repertoire)
-    arrays["key"] = host_copy(jax.random.key_data(state.key))
-    arrays["progress"] = np.asarray(json.dumps(_progress(state)))
-    if owner is not None:
-        arrays["owner"] = np.asarray(json.dumps(owner))
-    return arrays
-
-
-def save_checkpoint(directory: Path, state: RunState, owner: dict[str, Any] | None = None) -> None:
-    """Write the run's state atomically to directory/checkpoint.npz (now, not in the background)."""
-    write_npz(directory / CHECKPOINT, checkpoint_arrays(state, owner))
+    return dataclasses.asdict(state)
 
 
 class CheckpointWriter:
@@ -177,7 +112,7 @@ class CheckpointWriter:
     also when interrupted, so their last checkpoint is whole on disk.
 
     >>> writer = CheckpointWriter()
-    >>> writer.offer(directory / CHECKPOINT, lambda: checkpoint_arrays(state))  # doctest: +SKIP
+    >>> writer.offer(path, lambda: checkpoint_arrays(archives, keys, states))  # doctest: +SKIP
     True
     >>> writer.flush()
     """
@@ -284,15 +219,14 @@ def damaged_checkpoint(path: Path, problem: str) -> RunError:
 def _load(
     path: Path,
     genotype_template: Any,
-    key_field: str,
     layout: tuple[int | None, ...],
     descriptors: int | None,
     owner: dict[str, Any] | None = None,
 ) -> tuple[MapElitesRepertoire, jax.Array, Any] | None:
     """An archive, its key(s) and the progress JSON saved at path, or None if there is none.
 
-    `layout` is the leading axes every archive array must have: (cells,) for a run, (runs,
-    cells) for a sweep; `descriptors` the descriptor dimension. A file that cannot be read as
+    `layout` is the leading axes every archive array must have, (runs, cells);
+    `descriptors` the descriptor dimension. A file that cannot be read as
     such a checkpoint (truncated, corrupted, from another task) is a RunError naming it, and
     so is one whose recorded `owner` is not the given one (copied from another run).
     """
@@ -300,11 +234,11 @@ def _load(
         return None
     try:
         with np.load(path, allow_pickle=False) as data:
-            _check_layout(path, data, genotype_template, key_field, layout, descriptors)
+            _check_layout(path, data, genotype_template, layout, descriptors)
             if owner is not None and "owner" in data.files:  # checkpoints before 0.1.0's hardening have none
                 _check_owner(path, json.loads(str(data["owner"])), owner)
             repertoire = _repertoire_from(data, genotype_template)
-            key = jax.random.wrap_key_data(jax.numpy.asarray(data[key_field]))
+            key = jax.random.wrap_key_data(jax.numpy.asarray(data[KEYS]))
             return repertoire, key, json.loads(str(data["progress"]))
     except (ValueError, KeyError, EOFError, TypeError, IndexError, zipfile.BadZipFile) as error:
         raise damaged_checkpoint(path, f"it is damaged ({type(error).__name__}: {error})") from None
@@ -315,7 +249,7 @@ def _load(
 
 
 def _check_layout(
-    path: Path, data: Any, template: Any, key_field: str, layout: tuple[int | None, ...], descriptors: int | None
+    path: Path, data: Any, template: Any, layout: tuple[int | None, ...], descriptors: int | None
 ) -> None:
     """Refuse a checkpoint whose arrays are not shaped like this run's (another task, another
     policy network, another number of cells or runs): loading it would fail deep inside JAX.
@@ -331,7 +265,7 @@ def _check_layout(
     expected["key_data"] = layout[:-1] + tuple(jax.random.key_data(jax.random.key(0)).shape)
     if descriptors is not None:
         expected["descriptors"] = expected["centroids"] = (*layout, descriptors)
-    missing = sorted(set(expected) - {"key_data"} - set(data.files)) + ([] if key_field in data.files else [key_field])
+    missing = sorted(set(expected) - {"key_data"} - set(data.files)) + ([] if KEYS in data.files else [KEYS])
     if "progress" not in data.files:
         missing.append("progress")
     if missing:
@@ -339,11 +273,11 @@ def _check_layout(
             path, f"it lacks {', '.join(missing[:3])}{' ...' if len(missing) > 3 else ''} (is it from another task?)"
         )
     for name, shape in expected.items():
-        actual = data[key_field if name == "key_data" else name].shape
+        actual = data[KEYS if name == "key_data" else name].shape
         if name == "fitnesses" and actual == layout:
             continue  # (cells,) is as good as (cells, 1)
         if actual != shape:
-            shown = key_field if name == "key_data" else name
+            shown = KEYS if name == "key_data" else name
             raise damaged_checkpoint(
                 path,
                 f"its {shown} has shape {actual}, but this one needs {shape} (is it from another task, or "
@@ -375,89 +309,15 @@ def _brief(value: Any) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def load_checkpoint(
-    directory: Path,
-    genotype_template: Any,
-    num_cells: int | None = None,
-    num_descriptors: int | None = None,
-    owner: dict[str, Any] | None = None,
-) -> RunState | None:
-    """The state saved in directory, shaped like genotype_template (one policy with a leading
-    axis), or None if there is none; a RunError for a damaged one or one from another run."""
-    path = directory / CHECKPOINT
-    loaded = _load(path, genotype_template, "key", (num_cells,), num_descriptors, owner)
-    if loaded is None:
-        return None
-    repertoire, key, progress = loaded
-    try:
-        return _state(progress, repertoire, key)
-    except (TypeError, AttributeError) as error:
-        raise damaged_checkpoint(path, f"its progress record is damaged ({error})") from None
-
-
-def save_archive(path: Path, repertoire: MapElitesRepertoire) -> None:
-    """The final archive as `.npz`: `genotypes/<param path>` (C, ...), `fitnesses` (C,),
-    `descriptors` (C, D), `centroids` (C, D), `filled` (C,); empty cells have fitness -inf."""
-    arrays = _repertoire_arrays(repertoire)
-    fitnesses = arrays["fitnesses"].reshape(-1)
-    arrays.update(fitnesses=fitnesses, filled=fitnesses > -np.inf)
-    write_npz(path, arrays)
-
-
-@dataclass(frozen=True)
-class Archive:
-    """A saved archive: policy parameters as a nested dict (flax layout) and its scores."""
-
-    genotypes: dict[str, Any]
-    fitnesses: np.ndarray
-    descriptors: np.ndarray
-    centroids: np.ndarray
-    filled: np.ndarray
-
-    def elite(self, cell: int) -> dict[str, Any]:
-        """The policy parameters in one cell, ready for `policy.apply(params, obs)`."""
-        return jax.tree.map(lambda x: x[cell], self.genotypes)
-
-    @property
-    def best_cell(self) -> int:
-        return int(np.argmax(self.fitnesses))
-
-
-def load_archive(path: str | os.PathLike[str]) -> Archive:
-    """Load `archive.npz` from a run directory (or its path)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "archive.npz"
-    with np.load(path, allow_pickle=False) as data:
-        genotypes: dict[str, Any] = {}
-        for name in data.files:
-            if not name.startswith("genotypes/"):
-                continue
-            node = genotypes
-            *parents, leaf = name.split("/")[1:]
-            for part in parents:
-                node = node.setdefault(part, {})
-            node[leaf] = data[name]
-        return Archive(
-            genotypes=genotypes,
-            fitnesses=data["fitnesses"],
-            descriptors=data["descriptors"],
-            centroids=data["centroids"],
-            filled=data["filled"],
-        )
-
-
-SWEEP_CHECKPOINT = "sweep-checkpoint.npz"
-
-
-def sweep_checkpoint_arrays(
+def checkpoint_arrays(
     repertoires: MapElitesRepertoire, keys: jax.Array, states: list[RunState], owner: dict[str, Any] | None = None
 ) -> dict[str, np.ndarray]:
-    """Every run of a sweep, for one file: the archives stacked along a runs axis (only the
-    first len(states) runs: padding is not saved) and each run's counters and metrics rows,
-    copied to host memory. All runs are at the same generation."""
+    """A checkpoint of runs trained together (one, for `smol-dsl run`): the archives stacked
+    along a runs axis (only the first len(states) runs: padding is not saved), each run's
+    key, counters and metrics rows (all at the same generation), and `owner`, the runs it
+    belongs to; copied to host memory."""
     runs = len(states)
-    arrays = {name: values[:runs] for name, values in _repertoire_arrays(repertoires).items()}
+    arrays = {name: values[:runs] for name, values in archive_arrays(repertoires).items()}
     arrays["keys"] = host_copy(jax.random.key_data(keys))[:runs]
     arrays["progress"] = np.asarray(json.dumps([_progress(state) for state in states]))
     if owner is not None:
@@ -465,35 +325,35 @@ def sweep_checkpoint_arrays(
     return arrays
 
 
-def save_sweep_checkpoint(
+def save_checkpoint(
     path: Path,
     repertoires: MapElitesRepertoire,
     keys: jax.Array,
     states: list[RunState],
     owner: dict[str, Any] | None = None,
 ) -> None:
-    """Write every run of a sweep atomically to one file (now, not in the background)."""
-    write_npz(path, sweep_checkpoint_arrays(repertoires, keys, states, owner))
+    """Write a checkpoint atomically (now, not in the background)."""
+    write_npz(path, checkpoint_arrays(repertoires, keys, states, owner))
 
 
-def load_sweep_checkpoint(
+def load_checkpoint(
     path: Path,
     genotype_template: Any,
     num_runs: int,
-    num_cells: int,
+    num_cells: int | None,
     num_descriptors: int | None = None,
     owner: dict[str, Any] | None = None,
 ) -> tuple[MapElitesRepertoire, jax.Array, list[RunState]] | None:
-    """The stacked archives, keys and per-run states saved by save_sweep_checkpoint for
-    `num_runs` runs of `num_cells` cells, or None; a RunError for a damaged one, or one
-    another sweep (`owner`) wrote."""
-    loaded = _load(path, genotype_template, "keys", (num_runs, num_cells), num_descriptors, owner)
+    """The stacked archives, keys and per-run states saved by save_checkpoint for `num_runs`
+    runs of `num_cells` cells, or None if there is none; a RunError for a damaged one, or
+    one that other runs (`owner`) wrote."""
+    loaded = _load(path, genotype_template, (num_runs, num_cells), num_descriptors, owner)
     if loaded is None:
         return None
     repertoires, keys, progress = loaded
     if not isinstance(progress, list) or len(progress) != num_runs:
-        raise damaged_checkpoint(path, f"it does not hold progress for {num_runs} runs")
+        raise damaged_checkpoint(path, f"it does not hold progress for {num_runs} run{'s' if num_runs > 1 else ''}")
     try:
-        return repertoires, keys, [_state(p, None, None) for p in progress]
+        return repertoires, keys, [RunState(**p) for p in progress]
     except (TypeError, AttributeError) as error:
         raise damaged_checkpoint(path, f"its progress record is damaged ({error})") from None

@@ -1,4 +1,6 @@
-"""Run configuration: the paper's settings, and a `quick` preset sized for a 2-core CPU."""
+"""Run configuration: the paper's settings, and a `quick` preset sized for a 2-core CPU.
+
+Imports neither JAX nor Brax (`report` reads config.json with it)."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ from typing import Any
 from smol_dsl import Schedule
 from smol_dsl.errors import UserInputError
 from smol_dsl.seeds import check_seed
-from smol_dsl.tasks import TASK_NAMES
+from smol_dsl.tasks import PRESET_NAMES, task_spec
 
 ISO_SIGMA = 0.005  # the paper's iso+line variation
 LINE_SIGMA = 0.05
@@ -67,34 +69,21 @@ class RunConfig:
 
 
 # The paper (Table "Hyperparameters for each task"): 1e7 evaluations, 100 phases, 1024 CVT
-# centroids, iso+line variation.
-PAPER: dict[str, dict[str, Any]] = {
-    "walker2d": dict(batch_size=8192, episode_length=1000, hidden_layer_sizes=(64, 64)),
-    "halfcheetah": dict(batch_size=8192, episode_length=1000, hidden_layer_sizes=(64, 64)),
-    "ant_omni": dict(batch_size=1024, episode_length=100, hidden_layer_sizes=(256, 256)),
-}
+# centroids, iso+line variation; per task, the batch, episode and network sizes of its spec.
 PAPER_COMMON = dict(evaluations=10_000_000, num_phases=100, num_centroids=1024)
-
-# Sized so that `smol-dsl run walker2d human.sched` finishes in about 5 minutes on 2 CPU
-# cores (walker2d measured at 3m44s wall clock, progress bar included; raw rollouts run at ~210 walker2d
-# evaluations/s at 100 steps, ~50 halfcheetah, ~90 ant).
-QUICK: dict[str, dict[str, Any]] = {
-    "walker2d": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
-    "halfcheetah": dict(batch_size=64, episode_length=100, evaluations=8_192, hidden_layer_sizes=(64, 64)),
-    "ant_omni": dict(batch_size=64, episode_length=100, evaluations=12_800, hidden_layer_sizes=(256, 256)),
-}
+# Sized for a 2-core CPU; per task, the batch, episode, network and budget of its quick preset.
 QUICK_COMMON = dict(num_phases=20, num_centroids=256)
+COMMON = {"paper": PAPER_COMMON, "quick": QUICK_COMMON}
 
-PRESETS = ("quick", "paper")
+PRESETS = PRESET_NAMES
 
 
 def preset_config(task: str, preset: str = "quick", **overrides: Any) -> RunConfig:
     """The preset's settings for a task, with any field overridden (None means keep)."""
-    if task not in TASK_NAMES:
-        raise ValueError(f"unknown task {task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    spec = task_spec(task)  # a ValueError listing the tasks for an unknown one
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; the presets are {', '.join(PRESETS)}")
-    values: dict[str, Any] = {**PAPER_COMMON, **PAPER[task]} if preset == "paper" else {**QUICK_COMMON, **QUICK[task]}
+    values: dict[str, Any] = {**COMMON[preset], **spec.presets[preset]}
     values.update({k: v for k, v in overrides.items() if v is not None})
     return RunConfig(task=task, preset=preset, **values)
 

@@ -198,7 +198,7 @@ def plan_footprint(
 ) -> Footprint:
     """The footprint of `runs` runs of `config` on these devices (runs_per_step None: all of
     a device's runs at once)."""
-    from smol_dsl.runner.batched import mesh_shape
+    from smol_dsl.runner.engine import mesh_shape
     from smol_dsl.tasks import task_sizes
 
     sizes = task_sizes(config.task, tuple(config.hidden_layer_sizes))
@@ -275,8 +275,8 @@ def fit_sweep(
     `runs_per_step` as in `run_sweep`: -1 lets the device choose (one run at a time on a
     CPU; on an accelerator as many as fit, all of them if they do), None all of them.
     """
-    from smol_dsl.runner.batched import default_runs_per_step
-    from smol_dsl.runner.run import RunError
+    from smol_dsl.runner.config import RunError
+    from smol_dsl.runner.engine import default_runs_per_step
 
     memory = device_memory(list(devices))
     index, parts = part

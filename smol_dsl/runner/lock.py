@@ -19,6 +19,7 @@ import socket
 import warnings
 from pathlib import Path
 
+from smol_dsl.results.rundir import LOCK_FILE
 from smol_dsl.runner.config import RunError
 
 try:
@@ -26,7 +27,6 @@ try:
 except ImportError:  # not POSIX: runs are not locked
     fcntl = None  # type: ignore[assignment]
 
-LOCK_FILE = ".smol-dsl.lock"
 
 # file systems that cannot lock (some network mounts): the run goes on unlocked, with a warning
 _CANNOT_LOCK = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.EINVAL}

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
 from smol_dsl import Schedule
 from smol_dsl.runner.config import RunConfig
-from smol_dsl.runner.run import RunResult, format_duration
+from smol_dsl.runner.training import RunResult
 
 
 class ProgressBar:
@@ -71,3 +72,8 @@ def sweep_summary(results: list[RunResult], out_dir: Any) -> str:
         f"({total / max(seconds, 1e-9):.0f} evals/s over all runs) -> {out_dir}\n"
         f"next: smol-dsl report {out_dir}"
     )
+
+
+def format_duration(seconds: float) -> str:
+    minutes, whole = divmod(math.ceil(seconds), 60)
+    return f"{minutes}m{whole:02d}s" if minutes else f"{whole}s"

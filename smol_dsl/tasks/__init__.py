@@ -1,35 +1,27 @@
-"""The bundled α-aware QD tasks, by name: `make_task("walker2d", episode_length=100)`."""
+"""The bundled α-aware QD tasks, by name: `make_task("walker2d", episode_length=100)`.
+
+Importing this package imports neither JAX nor Brax: the registry holds specs (plain data
+and a factory), and a task's environment is built only by `make_task`. A new task is a
+factory and a `TaskSpec`, registered in one line below (or by `register` from user code).
+"""
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from dataclasses import dataclass
-from importlib import import_module
-from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING
 
-import numpy as np
+from smol_dsl.tasks.catalog import ANT_OMNI, HALFCHEETAH, WALKER2D
+from smol_dsl.tasks.registry import PRESET_NAMES, TaskSpec, make_task, register, task_names, task_spec
 
-from smol_dsl.tasks.quiet import import_brax
+if TYPE_CHECKING:
+    from smol_dsl.tasks.base import Task
 
-import_brax()  # first, so that MJX's Warp lines are not printed (see quiet.py)
+register(WALKER2D)
+register(HALFCHEETAH)
+register(ANT_OMNI)
 
-from smol_dsl.tasks.base import ScoringFn, Task, scale_gear  # noqa: E402
-
-TASK_NAMES = ("walker2d", "halfcheetah", "ant_omni")
-
-
-def _module(name: str) -> ModuleType:
-    if name not in TASK_NAMES:
-        raise ValueError(f"unknown task {name!r}; the tasks are {', '.join(TASK_NAMES)}")
-    return import_module(f"smol_dsl.tasks.{name}")
-
-
-def make_task(name: str, **options: Any) -> Task:
-    """Build a task by name; options go to the task module's `make`."""
-    make: Callable[..., Task] = _module(name).make
-    return make(**options)
+TASK_NAMES = task_names()  # the bundled tasks; `task_names()` includes any registered since
 
 
 @dataclass(frozen=True)
@@ -48,28 +40,44 @@ def task_sizes(name: str, hidden_layer_sizes: tuple[int, ...], backend: str = "s
     """The sizes of a task's policies and environment states, without compiling anything."""
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
-    from smol_dsl.tasks.base import make_policy
-
-    module = _module(name)
-    env = module.environment(backend)
-    state = jax.eval_shape(env.reset, jax.random.key(0))
-    observations = state.obs.shape[-1]
-    policy = make_policy(tuple(hidden_layer_sizes), env.action_size)
-    params = jax.eval_shape(policy.init, jax.random.key(0), jnp.zeros((observations,)))
+    task = make_task(name, episode_length=1, hidden_layer_sizes=tuple(hidden_layer_sizes), backend=backend)
+    state = jax.eval_shape(task.env.reset, jax.random.key(0))
+    params = jax.eval_shape(task.policy.init, jax.random.key(0), jnp.zeros((task.env.observation_size,)))
     return TaskSizes(
-        observations=observations,
-        actions=env.action_size,
+        observations=task.env.observation_size,
+        actions=task.env.action_size,
         parameters=sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(params)),
         state_bytes=sum(int(np.prod(leaf.shape)) * leaf.dtype.itemsize for leaf in jax.tree.leaves(state)),
-        descriptors=len(module.DESCRIPTOR_LOW),
+        descriptors=task.descriptor_size,
     )
 
 
 def descriptor_bounds(name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """A task's descriptor box (low, high), without building its environment."""
-    module = _module(name)
-    return module.DESCRIPTOR_LOW, module.DESCRIPTOR_HIGH
+    spec = task_spec(name)
+    return spec.descriptor_low, spec.descriptor_high
 
 
-__all__ = ["TASK_NAMES", "ScoringFn", "Task", "TaskSizes", "descriptor_bounds", "make_task", "scale_gear", "task_sizes"]
+__all__ = [
+    "PRESET_NAMES",
+    "TASK_NAMES",
+    "Task",
+    "TaskSizes",
+    "TaskSpec",
+    "descriptor_bounds",
+    "make_task",
+    "register",
+    "task_names",
+    "task_sizes",
+    "task_spec",
+]
+
+
+def __getattr__(name: str) -> object:
+    if name == "Task":  # the built task's class lives with JAX and Brax
+        from smol_dsl.tasks.base import Task
+
+        return Task
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

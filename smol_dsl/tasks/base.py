@@ -1,9 +1,9 @@
 """α-aware QD locomotion tasks on Brax v2: the shared rollout and the `Task` record.
 
-A task scores a batch of MLP policies in a Brax environment whose actuator gear is
-multiplied by α. α is a traced argument of the scoring function, so a new α never
-recompiles: the environment's `sys` (Brax keeps physics parameters there) is replaced by
-one with `actuator.gear * alpha` inside the traced computation.
+A task scores a batch of MLP policies in a Brax environment whose body its `modulate`
+hook changes: today, every actuator's gear multiplied by α. α is a traced argument of the
+scoring function, so a new α never recompiles: the environment's `sys` (Brax keeps
+physics parameters there) is replaced inside the traced computation.
 
 Rollouts follow QDax's `scoring_function_brax_envs` exactly (same deterministic initial
 state, same masking after the first `done`, descriptors from the state *before* each
@@ -21,40 +21,77 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from brax.envs.base import PipelineEnv, State
 
-ScoringFn = Callable[[Any, jax.Array, jax.Array], tuple[jax.Array, jax.Array, dict[str, jax.Array]]]
-"""(policy params batch, alpha, key) -> (fitnesses (B,), descriptors (B, D), extra)."""
+from smol_dsl.tasks.quiet import import_brax
+from smol_dsl.tasks.registry import TaskSpec
+
+import_brax()  # before Brax's modules, so that MJX's Warp lines are not printed (see quiet.py)
+
+from brax.base import System  # noqa: E402
+from brax.envs.base import PipelineEnv, State  # noqa: E402
+
+ScoringFn = Callable[[Any, jax.Array, State], tuple[jax.Array, jax.Array]]
+"""(policy params batch, alpha, episode start) -> (fitnesses (B,), descriptors (B, D))."""
+
+Modulation = Callable[[System, jax.Array], System]
+"""(sys, params) -> the sys a rollout runs in: the hook that changes the body (Brax keeps
+every physics parameter in `sys`, as its `randomization_fn` does). Today's one parameter
+is alpha, the scale of every actuator's gear."""
+
+EPISODE_START = 0x7A5C  # folded into a run's seed for its episode start
 
 
-def scale_gear(env: PipelineEnv, alpha: jax.Array) -> PipelineEnv:
-    """A shallow copy of a Brax env whose actuators' gear is multiplied by alpha.
+def scale_gear(sys: System, alpha: jax.Array) -> System:
+    """`sys` with every actuator's gear multiplied by alpha (works on a traced alpha)."""
+    return sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * alpha))
 
-    Works inside jit with a traced alpha: only `sys` changes, and Brax's pipelines read
-    every physics parameter from `sys`.
-    """
-    scaled = copy.copy(env)
-    sys = env.sys
-    scaled.sys = sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * alpha))
-    return scaled
+
+def with_sys(env: PipelineEnv, sys: System) -> PipelineEnv:
+    """A shallow copy of a Brax env that steps with another `sys` (inside jit too: Brax's
+    pipelines read every physics parameter from `sys`)."""
+    changed = copy.copy(env)
+    changed.sys = sys
+    return changed
 
 
 @dataclass(frozen=True, eq=False)  # compared and hashed by identity: it holds arrays
 class Task:
-    """A QD task: environment, policy network, descriptor space and α-aware scoring."""
+    """A QD task: environment, policy network, descriptor space and α-aware scoring.
 
-    name: str
+    Built from its registry spec (`smol_dsl.tasks.make_task`), which holds its name,
+    descriptor box and reward offset. The episode start is not part of the task: it comes
+    from a run's seed (`episode_start`), so every way of starting a run starts alike.
+    """
+
+    spec: TaskSpec
     env: PipelineEnv
     policy: Any  # a flax module mapping observations to actions in [-1, 1]
     episode_length: int
-    descriptor_size: int
-    descriptor_low: tuple[float, ...]
-    descriptor_high: tuple[float, ...]
-    qd_offset: float  # added per filled cell to the QD score so that it is positive
-    init_state: State  # the deterministic start of every episode
     state_descriptor: Callable[[State], jax.Array]  # per-step descriptor of a state
     reward: Callable[[State], jax.Array]  # per-step fitness reward of a (post-step) state
     final_descriptor: Callable[[jax.Array, jax.Array], jax.Array]  # (per-step, valid mask)
+    modulate: Modulation = scale_gear
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def descriptor_low(self) -> tuple[float, ...]:
+        return self.spec.descriptor_low
+
+    @property
+    def descriptor_high(self) -> tuple[float, ...]:
+        return self.spec.descriptor_high
+
+    @property
+    def descriptor_size(self) -> int:
+        return self.spec.descriptor_size
+
+    @property
+    def qd_offset(self) -> float:
+        """Added per filled cell to the QD score so that it is positive."""
+        return self.spec.reward_offset * self.episode_length
 
     def init_policies(self, key: jax.Array, batch_size: int) -> Any:
         """A batch of freshly initialised policy parameters."""
@@ -62,15 +99,13 @@ class Task:
         dummy = jnp.zeros((self.env.observation_size,))
         return jax.vmap(self.policy.init, in_axes=(0, None))(keys, dummy)
 
-    def start_state(self, init_key: jax.Array) -> State:
-        """The deterministic episode start for another init key (QDax: env.reset of a split key)."""
-        return deterministic_init_state(self.env, init_key)
+    def episode_start(self, seed: int) -> State:
+        """The deterministic start of every episode of the run with this seed."""
+        return deterministic_init_state(self.env, jax.random.fold_in(jax.random.key(seed), EPISODE_START))
 
-    def rollout(self, params: Any, alpha: jax.Array, start: State | None = None) -> tuple[jax.Array, jax.Array]:
-        """Fitness and descriptor of one policy at actuator scale alpha, from `start`
-        (default: the task's own init_state)."""
-        env = scale_gear(self.env, alpha)
-        start = self.init_state if start is None else start
+    def rollout(self, params: Any, alpha: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
+        """Fitness and descriptor of one policy in the body `modulate` makes of alpha."""
+        env = with_sys(self.env, self.modulate(self.env.sys, alpha))
 
         def step(carry: tuple[State, jax.Array], _: None) -> tuple[tuple[State, jax.Array], tuple]:
             state, ended = carry
@@ -86,29 +121,19 @@ class Task:
         fitness = jnp.sum(jnp.where(valid, rewards, 0.0))
         return fitness, self.final_descriptor(descriptors, valid)
 
-    def score(self, params: Any, alpha: jax.Array, start: State | None = None) -> tuple[jax.Array, jax.Array]:
+    def score(self, params: Any, alpha: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
         """Fitnesses (B,) and descriptors (B, D) of a batch of policies (not jitted: for
-        use inside other traced programs, such as a sweep's per-run step)."""
+        use inside other traced programs, such as the runner's per-run step)."""
         return jax.vmap(self.rollout, in_axes=(0, None, None))(params, alpha, start)
 
     def scoring_fn(self) -> ScoringFn:
-        """The jitted (params, alpha, key) -> (fitnesses, descriptors, extra) for batches.
-
-        Built once per task, so every run and re-evaluation with this task shares one
-        compilation per batch shape. Episodes start from the task's deterministic state,
-        so `key` is unused; it is kept for QDax's scoring-function convention.
-        """
+        """`score`, jitted once per task: alpha and the start are traced, so any body and
+        any episode start share one compilation per batch shape."""
         return self._scoring_fn
 
     @functools.cached_property
     def _scoring_fn(self) -> ScoringFn:
-        @jax.jit
-        def score(params: Any, alpha: jax.Array, key: jax.Array) -> tuple[jax.Array, jax.Array, dict]:
-            del key
-            fitnesses, descriptors = self.score(params, alpha)
-            return fitnesses, descriptors, {}
-
-        return score
+        return jax.jit(self.score)
 
 
 def mean_over_valid(per_step: jax.Array, valid: jax.Array) -> jax.Array:

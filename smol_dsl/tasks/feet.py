@@ -1,37 +1,36 @@
-"""Forward-locomotion tasks whose descriptor is the duty factor of each foot."""
+"""Forward-locomotion tasks described by the duty factor of each foot (QDax's "uni" tasks).
+
+Fitness is the sum of the Brax env's own reward until the body falls (walker2d: forward
+velocity, healthy bonus, control cost; halfcheetah: forward velocity minus control cost);
+the descriptor is the proportion of steps each foot (the spec's `details["feet"]`) touches
+the ground, from the pipeline's contacts (its debug output).
+"""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
-from brax.envs.base import PipelineEnv, State
 
-from smol_dsl.tasks.base import Task, deterministic_init_state, make_policy, mean_over_valid
+from smol_dsl.tasks.base import Task, make_policy, mean_over_valid
 from smol_dsl.tasks.quiet import brax_environment
+from smol_dsl.tasks.registry import TaskSpec
+
+if TYPE_CHECKING:
+    from brax.envs.base import State
 
 
-def duty_factor_bounds(feet: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The descriptor box of duty factors: [0, 1] per foot."""
-    return (0.0,) * feet, (1.0,) * feet
-
-
-def feet_environment(env_name: str, backend: str = "spring") -> PipelineEnv:
-    """The Brax env, with the pipeline's debug output (contacts) that duty factors need."""
-    return brax_environment(env_name, backend=backend, debug=True)
-
-
-def feet_task(
-    env_name: str,
-    feet: tuple[str, ...],
-    reward_offset: float,
-    episode_length: int,
-    hidden_layer_sizes: tuple[int, ...],
-    init_key: jax.Array | None,
-    backend: str,
+def make(
+    spec: TaskSpec,
+    *,
+    episode_length: int = 1000,
+    hidden_layer_sizes: tuple[int, ...] = (64, 64),
+    backend: str = "spring",
 ) -> Task:
-    """A Brax env scored by its own reward, described by the proportion of steps each
-    foot touches the ground (contacts need the pipeline's debug output)."""
-    env = feet_environment(env_name, backend)
+    """The task of `spec` (walker2d, halfcheetah): its Brax env with contacts recorded."""
+    env = brax_environment(spec.environment, backend=backend, debug=True)
+    feet = spec.details["feet"]
     feet_idx = jnp.asarray([i for i, name in enumerate(env.sys.link_names) if name in feet])
 
     def feet_contact(state: State) -> jax.Array:
@@ -39,17 +38,11 @@ def feet_task(
         touching = (contact.link_idx[1][None, :] == feet_idx[:, None]) & (contact.dist[None, :] <= 0)
         return jnp.any(touching, axis=-1).astype(jnp.float32)
 
-    key = jax.random.key(0) if init_key is None else init_key
     return Task(
-        name=env_name,
+        spec=spec,
         env=env,
         policy=make_policy(hidden_layer_sizes, env.action_size),
         episode_length=episode_length,
-        descriptor_size=len(feet),
-        descriptor_low=duty_factor_bounds(len(feet))[0],
-        descriptor_high=duty_factor_bounds(len(feet))[1],
-        qd_offset=reward_offset * episode_length,
-        init_state=deterministic_init_state(env, key),
         state_descriptor=feet_contact,
         reward=lambda state: state.reward,
         final_descriptor=mean_over_valid,

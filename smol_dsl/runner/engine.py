@@ -1,22 +1,25 @@
-"""Many phased MAP-Elites runs as one program: runs are an axis of the computation.
+"""The engine: phased MAP-Elites runs as one program, runs an axis of the computation.
 
-Every run of a sweep has the same task and settings but its own seed, schedule and
-archive, and all runs reach their phase boundaries together. So one jitted program
-advances every run by one generation, and one re-evaluates every archive, with each run's
-α a traced value. With `jax.shard_map` over a (runs, population) device mesh, runs are
+`smol-dsl run` is one run of it and `smol-dsl sweep` many. Every run has the same task and
+settings but its own seed, schedule and archive, and all runs reach their phase boundaries
+together. So one jitted program advances every run by one generation (`RunStep.generation`),
+and one re-evaluates every archive (`RunStep.reevaluate_chunk`), with each run's α a
+traced value. With `jax.shard_map` over a (runs, population) device mesh, runs are
 split across devices (independent: no communication), and devices left over split each
 offspring batch (its rollouts are gathered back). On each device the local runs are
 either vmapped together (accelerators: one big batch) or mapped one after another inside
 the program (`runs_per_step`; CPUs, where rollouts slow down as batches grow past ~128).
 
-Per run, the programs do exactly what `PhasedMapElites` does for a single run, with the
-same random keys, so a sweep's run follows the same algorithm and random streams as
-`smol-dsl run` of that seed.
+A single run on several devices splits its population across all of them, so `smol-dsl
+run` uses the whole machine. Per run, the programs are the same per-run step with the same
+random keys whatever the layout, so a sweep's run follows the same algorithm and random
+streams as `smol-dsl run` of that seed.
 """
 
 from __future__ import annotations
 
-from functools import partial
+from collections.abc import Sequence
+from functools import lru_cache, partial
 from typing import Any
 
 import jax
@@ -26,14 +29,10 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 from qdax.utils.metrics import default_qd_metrics
 
-from smol_dsl.runner.algorithm import (
-    empty_archive,
-    insert_survivors,
-    make_map_elites,
-    reevaluation_chunks,
-    tell_finite,
-)
-from smol_dsl.tasks import Task
+from smol_dsl.runner.config import RunConfig
+from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites, reevaluation_chunks
+from smol_dsl.tasks import make_task
+from smol_dsl.tasks.base import Task
 
 RUNS = "runs"
 POPULATION = "population"
@@ -59,7 +58,7 @@ def default_runs_per_step(devices: list[jax.Device]) -> int | None:
     return 1 if devices[0].platform == "cpu" else None
 
 
-class BatchedMapElites:
+class Engine:
     """Jitted programs that advance R runs at once, sharded over `devices`.
 
     The devices form a (runs, population) mesh (`mesh_shape`): runs are split across the
@@ -91,9 +90,10 @@ class BatchedMapElites:
         grid = np.asarray(self.devices).reshape(along_runs, self.population_devices)
         self.mesh = Mesh(grid, (RUNS, POPULATION))
         self.sharding = NamedSharding(self.mesh, PartitionSpec(RUNS))
-        self.map_elites = make_map_elites(batch_size, task.qd_offset, iso_sigma, line_sigma)
-        self._step = self._over_runs(self._run_step, donate=(0,))
-        self._reevaluate_chunk = self._over_runs(self._run_reevaluate_chunk, donate=(0,))
+        map_elites = make_map_elites(batch_size, task.qd_offset, iso_sigma, line_sigma)
+        self.run_step = RunStep(map_elites, task.init_policies, self._score, batch_size)
+        self._step = self._over_runs(self.run_step.generation, donate=(0,))
+        self._reevaluate_chunk = self._over_runs(self.run_step.reevaluate_chunk, donate=(0,))
         self._metrics = self._over_runs(lambda archive: default_qd_metrics(archive, task.qd_offset))
         self._split = jax.jit(jax.vmap(jax.random.split))
 
@@ -132,44 +132,6 @@ class BatchedMapElites:
         fitnesses, descriptors = self.task.score(mine, alpha, start)
         gather = partial(jax.lax.all_gather, axis_name=POPULATION, tiled=True)
         return gather(fitnesses), gather(descriptors)
-
-    def _run_step(
-        self, repertoire: MapElitesRepertoire, alpha: jax.Array, start: Any, key: jax.Array
-    ) -> tuple[MapElitesRepertoire, dict[str, jax.Array], jax.Array, jax.Array]:
-        """One generation of one run; an empty archive is reseeded with fresh policies."""
-        ask_key, score_key = jax.random.split(key)
-        del score_key  # episodes start deterministically; split as the single run does
-        empty = ~jnp.any(repertoire.fitnesses > -jnp.inf)
-        genotypes = jax.lax.cond(
-            empty,
-            lambda: self.task.init_policies(ask_key, self.batch_size),
-            lambda: self.map_elites.ask(repertoire, None, ask_key)[0],
-        )
-        fitnesses, descriptors = self._score(genotypes, alpha, start)
-        repertoire, _, metrics, dropped = tell_finite(
-            self.map_elites, genotypes, fitnesses, descriptors, repertoire, None
-        )
-        return repertoire, metrics, dropped, empty
-
-    def _run_reevaluate_chunk(
-        self,
-        fresh: MapElitesRepertoire,
-        source: Any,
-        index: jax.Array,
-        valid: jax.Array,
-        alpha: jax.Array,
-        start: Any,
-        extinction: jax.Array,
-        key: jax.Array,
-    ) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
-        """Re-score one chunk of one run's elites and insert the survivors into `fresh`."""
-        key, score_key, death_key = jax.random.split(key, 3)
-        del score_key
-        genotypes = jax.tree.map(lambda x: x[index], source)
-        fitnesses, descriptors = self._score(genotypes, alpha, start)
-        survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
-        fresh, dropped = insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
-        return fresh, key, dropped
 
     # ------------------------------------------------------------------ batched API
     def empty_archives(self, centroids: jax.Array) -> MapElitesRepertoire:
@@ -226,9 +188,48 @@ class BatchedMapElites:
         return jax.device_get(self._metrics(repertoires))
 
 
+@lru_cache(maxsize=8)
+def _engine(
+    task: Task,
+    batch_size: int,
+    iso_sigma: float,
+    line_sigma: float,
+    devices: tuple[jax.Device, ...],
+    runs_per_step: int | None,
+    num_runs: int,
+) -> Engine:
+    return Engine(
+        task,
+        batch_size=batch_size,
+        iso_sigma=iso_sigma,
+        line_sigma=line_sigma,
+        devices=list(devices),
+        runs_per_step=runs_per_step,
+        num_runs=num_runs,
+    )
+
+
+@lru_cache(maxsize=8)
+def shared_task(name: str, episode_length: int, hidden_layer_sizes: tuple[int, ...]) -> Task:
+    """One task per setting in a process (a task holds no seed: runs of any seed share it)."""
+    return make_task(name, episode_length=episode_length, hidden_layer_sizes=hidden_layer_sizes)
+
+
+def shared_engine(
+    task: Task | str, config: RunConfig, devices: Sequence[jax.Device], runs_per_step: int | None, num_runs: int
+) -> Engine:
+    """The engine for these settings, shared within a process so that runs and sweeps of the
+    same task and settings reuse its compilations; a task given by name is built here."""
+    if isinstance(task, str):
+        task = shared_task(task, config.episode_length, tuple(config.hidden_layer_sizes))
+    return _engine(
+        task, config.batch_size, config.iso_sigma, config.line_sigma, tuple(devices), runs_per_step, num_runs
+    )
+
+
 def stack_runs(trees: list[Any]) -> Any:
     """Stack per-run pytrees along a new leading runs axis."""
     return jax.tree.map(lambda *x: jnp.stack(x), *trees)
 
 
-__all__ = ["BatchedMapElites", "default_runs_per_step", "mesh_shape", "stack_runs"]
+__all__ = ["Engine", "default_runs_per_step", "mesh_shape", "shared_engine", "shared_task", "stack_runs"]

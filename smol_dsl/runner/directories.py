@@ -1,0 +1,406 @@
+"""Run and sweep directories: set up, locked, checked on resume.
+
+A run directory is created with the run's settings, schedule and certificate before
+anything trains, and locked (smol_dsl.runner.lock) while a process writes it; resuming
+checks that the settings and schedule are the ones it was started with, naming each that
+differs. A sweep directory holds sweep.json and one run directory per (schedule, seed).
+Every refusal is a RunError that names the path and says what to do.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import re
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from smol_dsl import Schedule
+from smol_dsl.results.rundir import CONFIG_FILE, LOCK_FILE, SCHEDULE_FILE, SWEEP_FILE, write_run_files, write_text
+from smol_dsl.runner.checkpoint import storage_error, write_failure
+from smol_dsl.runner.config import RunConfig, RunError
+from smol_dsl.runner.lock import DirectoryLock
+
+if TYPE_CHECKING:
+    from smol_dsl.runner.training import PlannedRun
+
+
+def run_name(task: str, schedule: Schedule, seed: int) -> str:
+    """A run directory's name: TASK-SCHEDULE-seedS (SCHEDULE: the file's stem, or its name)."""
+    stem = Path(schedule.path).stem if schedule.path else schedule.name
+    return f"{task}-{stem}-seed{seed}"
+
+
+@contextlib.contextmanager
+def storage_errors(checkpoint: Path) -> Iterator[None]:
+    """Turn an OSError from writing a run's files (a full disk, a file system gone read-only)
+    into a RunError that names the file and says that `checkpoint` is intact to --resume from."""
+    try:
+        yield
+    except OSError as error:
+        raise storage_error(error, checkpoint, fallback=checkpoint.parent) from None
+
+
+def out_path(out_dir: str | Path | None) -> Path | None:
+    """out_dir as a Path, refusing an empty one (which would silently mean the current directory)."""
+    if out_dir is None:
+        return None
+    if str(out_dir) == "" or (isinstance(out_dir, str) and not out_dir.strip()):
+        raise RunError("--out: empty path; give the directory to write the run to (or leave --out out)")
+    if "\0" in str(out_dir):
+        raise RunError(f"--out {str(out_dir)!r}: a path cannot hold a NUL character")
+    return Path(out_dir)
+
+
+OPTIONS = {
+    "task": "TASK",
+    "evaluations": "--evals",
+    "batch_size": "--batch-size",
+    "num_phases": "--phases",
+    "num_centroids": "--centroids",
+    "episode_length": "--episode-length",
+    "seed": "--seed",
+    "preset": "--preset",
+}
+"""The command-line option that sets each RunConfig field; the preset sets the others."""
+
+
+def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig, resume: bool) -> DirectoryLock:
+    """Check a directory to resume, or create one and write the run's settings into it.
+
+    Returns the directory's lock, held: the caller releases it when the run ends (it is a
+    context manager). A second process on the same directory is refused with a RunError.
+    """
+    check_out_dir(directory)
+    if resume:
+        return _resume_run_directory(directory, schedule, config)
+    if non_empty(directory):
+        raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
+    make_directory(directory, "run")
+    lock = lock_directory(directory, "run", resume=False)
+    try:
+        if non_empty(directory):  # another process set it up since we looked
+            raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
+        set_up(directory, lambda: write_run_files(directory, config, schedule))
+    except BaseException:
+        lock.release()
+        raise
+    return lock
+
+
+def _resume_run_directory(directory: Path, schedule: Schedule, config: RunConfig) -> DirectoryLock:
+    config_path = directory / CONFIG_FILE
+    if not config_path.is_file():
+        if (directory / SWEEP_FILE).is_file():
+            raise RunError(
+                f"{directory} is a sweep directory, not a run's: resume it with `smol-dsl sweep ... --resume`, "
+                "or resume one of its runs with --out on that run's directory"
+            )
+        raise RunError(f"{directory} holds no run to resume (no config.json); start it without --resume")
+    lock = lock_directory(directory, "run", resume=True)
+    try:
+        saved = read_json_object(config_path, "run")
+        differences = setting_differences(saved, json.loads(config.to_json()), "run")
+        if differences:
+            raise RunError(
+                f"{directory} was started with different settings; resume it with the same ones: "
+                + "; ".join(differences)
+            )
+        schedule_path = directory / SCHEDULE_FILE
+        if not schedule_path.is_file():
+            raise RunError(
+                f"{directory} holds no schedule.sched, so it cannot be resumed: put back, as {schedule_path}, "
+                "a copy of the schedule file the run was started with"
+            )
+        if schedule_path.read_bytes() != schedule.source.encode():
+            what = schedule.path or schedule.name
+            raise RunError(
+                f"{directory} was started with a different schedule: {what} is not the text in {schedule_path}; "
+                f"resume it with the schedule it was started with (for instance {schedule_path} itself)"
+            )
+        remove_stale_temporaries(directory)
+    except BaseException:
+        lock.release()
+        raise
+    return lock
+
+
+def check_out_dir(directory: Path) -> None:
+    """Refuse an output path that cannot be a directory, naming it and saying what to give."""
+    try:
+        if directory.exists() and not directory.is_dir():
+            kind = "a file" if directory.is_file() else "a special file (a device, pipe or socket)"
+            raise RunError(
+                f"--out {directory}: {directory} is {kind}, not a directory; give the path of a directory "
+                "(it is created if missing)"
+            )
+        parent = next((p for p in directory.parents if p.exists()), None)
+    except OSError:
+        return  # cannot even look: creating or locking it reports the OS's reason
+    if parent is not None and not parent.is_dir():
+        raise RunError(
+            f"--out {directory}: {parent} is a file, not a directory, so nothing can be created under it; "
+            "give another --out"
+        )
+
+
+def non_empty(directory: Path) -> bool:
+    """Whether directory exists and holds anything but its lock file (False if it cannot be
+    read: creating or locking it then says why)."""
+    try:
+        return directory.is_dir() and any(path.name != LOCK_FILE for path in directory.iterdir())
+    except OSError:
+        return False
+
+
+def make_directory(directory: Path, what: str) -> None:
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        reason = error.strerror or str(error)
+        where = f" ({error.filename})" if error.filename not in (None, str(directory)) else ""
+        raise RunError(
+            f"cannot create the {what} directory {directory}: {reason}{where}; give an --out where you can write"
+        ) from None
+
+
+def lock_directory(directory: Path, what: str, resume: bool) -> DirectoryLock:
+    """The directory's lock (see smol_dsl.runner.lock), or a RunError that says why not."""
+    try:
+        return DirectoryLock.acquire(directory, what)
+    except OSError as error:
+        reason = error.strerror or str(error)
+        if resume:
+            fix = (
+                f"the {what} cannot go on there: make it writable, or copy the directory somewhere writable "
+                "and resume the copy (--out COPY --resume)"
+            )
+        else:
+            fix = "give an --out where you can write"
+        raise RunError(f"cannot write in {directory}: {reason}; {fix}") from None
+
+
+def set_up(directory: Path, write: Callable[[], Any]) -> None:
+    """Write a new run's or sweep's files (`write` removes those it wrote if one fails); a
+    disk that cannot take them is a RunError naming the file: nothing was started."""
+    try:
+        write()
+    except OSError as error:
+        target, reason, fix = write_failure(error, fallback=directory)
+        raise RunError(
+            f"cannot write {target}: {reason}; nothing was started: {fix}, then run the command again"
+        ) from None
+
+
+def read_json_object(path: Path, what: str) -> dict[str, Any]:
+    """The JSON object in path (a run's config.json, a sweep's sweep.json), or a RunError
+    that names the file as damaged."""
+    try:
+        data = json.loads(path.read_bytes())
+    except (ValueError, UnicodeDecodeError) as error:
+        data, problem = None, f"not JSON: {error}"
+    else:
+        problem = "not a JSON object"
+    if not isinstance(data, dict):
+        raise RunError(
+            f"{path} is damaged ({problem}); it records the settings the {what} was started with, so the {what} "
+            f"cannot be resumed without it: put back a good copy, or start the {what} afresh in another --out"
+        )
+    return data
+
+
+_MISSING = object()
+
+
+def setting_differences(saved: dict[str, Any], requested: dict[str, Any], what: str) -> list[str]:
+    """One line per setting that differs between a saved config.json and the one requested,
+    naming the option: "--batch-size: the run was started with 64, not 128"."""
+    order = [field.name for field in dataclasses.fields(RunConfig)]
+    names = order + sorted((set(saved) | set(requested)) - set(order))
+    lines = []
+    for name in names:
+        old, new = saved.get(name, _MISSING), requested.get(name, _MISSING)
+        if old == new:
+            continue
+        option = OPTIONS.get(name, f"{name} (set by --preset)")
+        lines.append(f"{option}: the {what} was started with {_shown(old)}, not {_shown(new)}")
+    return lines
+
+
+def _shown(value: Any) -> str:
+    if value is _MISSING:
+        return "no such setting"
+    if isinstance(value, list):
+        return "[" + ", ".join(str(v) for v in value) + "]"
+    return str(value)
+
+
+_TEMPORARY = re.compile(r".+\.\d+\.tmp")
+
+
+def remove_stale_temporaries(directory: Path, prefix: str = "") -> None:
+    """Delete the temporary files a killed process left in a directory this process has
+    locked (a checkpoint's can be as big as the checkpoint)."""
+    for path in directory.iterdir():
+        if path.name.startswith(prefix) and _TEMPORARY.fullmatch(path.name) and path.is_file():
+            with contextlib.suppress(OSError):
+                path.unlink()
+
+
+def sweep_description(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
+    shared = json.loads(config.to_json())
+    del shared["seed"]
+    return {
+        "task": config.task,
+        "config": shared,
+        "runs": [
+            {"name": run.name, "schedule": run.schedule.name, "seed": run.config.seed, "source": run.schedule.source}
+            for run in runs
+        ],
+    }
+
+
+def prepare_sweep_directory(
+    directory: Path,
+    every: list[PlannedRun],
+    runs: list[PlannedRun],
+    config: RunConfig,
+    resume: bool,
+    shared: bool,
+    checkpoint_name: str,
+) -> contextlib.ExitStack:
+    """Write or check sweep.json (all runs) and prepare this process's run directories.
+    A directory `shared` by several processes may already hold the others' runs.
+
+    Returns the locks this process holds, as one context manager: every run directory it
+    writes, and the sweep directory itself unless it is shared, so that no second process
+    can write them at the same time.
+    """
+    check_out_dir(directory)
+    description = sweep_description(every, config)
+    sweep_file = directory / SWEEP_FILE
+    locks = contextlib.ExitStack()
+    try:
+        if resume and not sweep_file.is_file():
+            if (directory / CONFIG_FILE).is_file():
+                raise RunError(
+                    f"{directory} is a run directory, not a sweep's: resume it with `smol-dsl run ... --resume`"
+                )
+            raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
+        if not resume:
+            busy = [d for d in ([directory] if not shared else [directory / r.name for r in runs]) if non_empty(d)]
+            if busy:
+                raise RunError(
+                    f"{busy[0]} already exists and is not empty; use --resume to continue it or another --out"
+                )
+            make_directory(directory, "sweep")
+        if not shared:
+            locks.enter_context(lock_directory(directory, "sweep", resume))
+            if not resume and non_empty(directory):  # another process started one since we looked
+                raise RunError(
+                    f"{directory} already exists and is not empty; use --resume to continue it or another --out"
+                )
+        saved = read_json_object(sweep_file, "sweep") if sweep_file.is_file() else None
+        if saved is not None and saved != description and (resume or shared):
+            raise RunError(
+                f"{directory} was started with different settings, schedules or seeds; resume it with the same "
+                "command line: " + "; ".join(_sweep_differences(saved, description, directory))
+            )
+        if not resume:
+            set_up(directory, lambda: write_text(directory / SWEEP_FILE, json.dumps(description, indent=2)))
+        for run in runs:
+            run_directory = directory / run.name
+            # a run directory deleted since the sweep started is set up again; its checkpoint is the sweep's
+            again = resume and not (run_directory / CONFIG_FILE).exists() and not non_empty(run_directory)
+            locks.enter_context(prepare_run_directory(run_directory, run.schedule, run.config, resume and not again))
+        if resume:
+            _check_process_count(directory, checkpoint_name)
+            remove_stale_temporaries(directory, prefix=f"{checkpoint_name}.")
+    except BaseException:
+        locks.close()
+        raise
+    return locks
+
+
+_CHECKPOINT_NAME = re.compile(r"sweep-checkpoint(?:-(\d+)-of-(\d+))?\.npz")
+
+
+def _check_process_count(directory: Path, checkpoint_name: str) -> None:
+    """Refuse to resume a sweep with another number of processes than it was checkpointed
+    by: this process's checkpoint would be missing, and its runs would silently start over."""
+    if (directory / checkpoint_name).exists():
+        return
+    ours = _CHECKPOINT_NAME.fullmatch(checkpoint_name)
+    parts = int(ours.group(2)) if ours and ours.group(2) else 1
+    others = sorted(
+        name
+        for name in (path.name for path in directory.iterdir())
+        if (match := _CHECKPOINT_NAME.fullmatch(name)) and int(match.group(2) or 1) != parts
+    )
+    if others:
+        counts = sorted({int(m.group(2) or 1) for m in map(_CHECKPOINT_NAME.fullmatch, others) if m})
+        started = " or ".join(_processes(count) for count in counts)
+        raise RunError(
+            f"{directory} was checkpointed by {started} ({', '.join(others[:3])}{', ...' if len(others) > 3 else ''}), "
+            f"not {_processes(parts)}: resume it with the same --num-processes (or none, for one process); "
+            f"otherwise this process's runs would start over"
+        )
+
+
+def _processes(count: int) -> str:
+    return "one process" if count == 1 else f"{count} processes (--num-processes {count})"
+
+
+def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], directory: Path) -> list[str]:
+    """What differs between a saved sweep.json and this sweep, one line per setting."""
+    saved_config = saved.get("config")
+    lines = setting_differences(saved_config if isinstance(saved_config, dict) else {}, description["config"], "sweep")
+    saved_runs = (
+        [r for r in saved.get("runs", []) if isinstance(r, dict)] if isinstance(saved.get("runs"), list) else []
+    )
+    task = str(saved.get("task", description["task"]))
+    old_stems, new_stems = _stems(saved_runs, task), _stems(description["runs"], description["task"])
+    if old_stems != new_stems:
+        lines.append(f"SCHEDULE: the sweep was started with {', '.join(old_stems)}, not {', '.join(new_stems)}")
+    old_seeds, new_seeds = _seeds(saved_runs), _seeds(description["runs"])
+    if old_seeds != new_seeds:
+        lines.append(
+            f"--first-seed/--seeds: the sweep was started with seeds {_seed_list(old_seeds)}, "
+            f"not {_seed_list(new_seeds)}"
+        )
+    if not lines:
+        sources = {r.get("name"): r.get("source") for r in saved_runs}
+        for run in description["runs"]:
+            if run["name"] in sources and sources[run["name"]] != run["source"]:
+                stem = _stems([run], description["task"])[0]
+                lines.append(
+                    f"SCHEDULE {stem}: its text is not the one the sweep was started with "
+                    f"(kept in {directory / run['name'] / 'schedule.sched'})"
+                )
+                break
+    return lines or [f"{directory / SWEEP_FILE} does not describe this sweep"]
+
+
+def _stems(runs: list[dict[str, Any]], task: str) -> list[str]:
+    stems: list[str] = []
+    for run in runs:
+        match = re.fullmatch(rf"{re.escape(task)}-(.*)-seed-?\d+", str(run.get("name", "")))
+        stem = match.group(1) if match else str(run.get("schedule"))
+        if stem not in stems:
+            stems.append(stem)
+    return stems
+
+
+def _seeds(runs: list[dict[str, Any]]) -> list[Any]:
+    return sorted({run.get("seed") for run in runs}, key=str)
+
+
+def _seed_list(seeds: list[Any]) -> str:
+    if seeds and all(isinstance(s, int) for s in seeds):
+        seeds = sorted(seeds)
+        if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[-1] + 1)):
+            return f"{seeds[0]}..{seeds[-1]}"
+    shown = ", ".join(str(s) for s in seeds[:10])
+    return shown + (", ..." if len(seeds) > 10 else "")

@@ -1,0 +1,184 @@
+"""MAP-Elites with a changing body: one run's step, on QDax's ask/tell and archive.
+
+`RunStep` is the single per-run step both `smol-dsl run` and `sweep` use (through
+`smol_dsl.runner.engine`, which maps it over runs and devices). It is pure, with α a
+traced argument, so a run of any number of phases compiles the same few programs:
+
+- `generation`: offspring by iso+line variation of uniformly selected elites (QDax's
+  `ask`), or fresh policies when the archive is empty (reseeding); the task's rollouts at
+  actuator scale α; insertion into the CVT archive (QDax's `tell`) after non-finite
+  results are dropped;
+- `reevaluate_chunk`: at a phase boundary, every filled cell is scored again under the new
+  α, elites die with the schedule's extinction probability, and the survivors go into a
+  fresh archive (collisions keep the best). It runs in fixed-size chunks over the filled
+  cells only (`reevaluation_chunks`), so its cost is proportional to the filled cells.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire, compute_cvt_centroids
+from qdax.core.emitters.mutation_operators import isoline_variation
+from qdax.core.emitters.standard_emitters import MixingEmitter
+from qdax.core.map_elites import MAPElites
+from qdax.utils.metrics import default_qd_metrics
+
+Metrics = dict[str, jax.Array]
+
+
+def drop_non_finite(fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Mark results with a non-finite fitness or descriptor as empty (-inf, never inserted).
+
+    Returns the cleaned fitnesses and descriptors, and which results were finite.
+    """
+    finite = jnp.isfinite(fitnesses) & jnp.all(jnp.isfinite(descriptors), axis=-1)
+    fitnesses = jnp.where(finite, fitnesses, -jnp.inf)
+    descriptors = jnp.where(finite[:, None], descriptors, 0.0)
+    return fitnesses, descriptors, finite
+
+
+def make_map_elites(batch_size: int, qd_offset: float, iso_sigma: float, line_sigma: float) -> MAPElites:
+    """QDax's MAP-Elites with iso+line variation of uniformly selected elites; it is only
+    asked and told (scoring is ours, α-aware)."""
+    emitter = MixingEmitter(
+        mutation_fn=None,  # type: ignore[arg-type]
+        variation_fn=partial(isoline_variation, iso_sigma=iso_sigma, line_sigma=line_sigma),
+        variation_percentage=1.0,
+        batch_size=batch_size,
+    )
+    return MAPElites(
+        scoring_function=None,
+        emitter=emitter,
+        metrics_function=partial(default_qd_metrics, qd_offset=qd_offset),
+    )
+
+
+def tell_finite(
+    map_elites: MAPElites,
+    genotypes: Any,
+    fitnesses: jax.Array,
+    descriptors: jax.Array,
+    repertoire: MapElitesRepertoire,
+) -> tuple[MapElitesRepertoire, Metrics, jax.Array]:
+    """QDax's tell after non-finite results are dropped; also returns how many were dropped.
+    (Iso+line variation of uniformly chosen elites keeps no emitter state.)"""
+    fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
+    repertoire, _, metrics = map_elites.tell(
+        genotypes=genotypes,
+        fitnesses=fitnesses,
+        descriptors=descriptors,
+        repertoire=repertoire,
+        emitter_state=None,
+    )
+    return repertoire, metrics, jnp.sum(~finite)
+
+
+def insert_survivors(
+    archive: MapElitesRepertoire,
+    genotypes: Any,
+    fitnesses: jax.Array,
+    descriptors: jax.Array,
+    valid: jax.Array,
+    survives: jax.Array,
+) -> tuple[MapElitesRepertoire, jax.Array]:
+    """Insert re-evaluated elites that are valid (not padding), survived extinction and
+    scored finite; also returns how many valid ones were non-finite."""
+    fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
+    fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
+    return archive.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
+
+
+def empty_archive(example_genotypes: Any, centroids: jax.Array) -> MapElitesRepertoire:
+    """An archive with no elites on these centroids, for genotypes shaped like a batch's."""
+    one = jax.tree.map(lambda x: x[0], example_genotypes)
+    return MapElitesRepertoire.init_default(genotype=one, centroids=centroids)
+
+
+def reevaluation_chunks(filled: list[np.ndarray], batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Fixed-size chunks over each run's filled cells, up to the fullest run: per chunk,
+    cell indices and which of them are real, both (runs, batch_size). A short chunk is
+    padded by repeating its cells (padding is not kept); a run with no cells left gets an
+    all-invalid row."""
+    for start in range(0, max((len(cells) for cells in filled), default=0), batch_size):
+        index = np.zeros((len(filled), batch_size), dtype=np.int32)
+        valid = np.zeros((len(filled), batch_size), dtype=bool)
+        for run, cells in enumerate(filled):
+            chunk = cells[start : start + batch_size]
+            if len(chunk):
+                index[run] = np.resize(chunk, batch_size)
+                valid[run, : len(chunk)] = True
+        yield index, valid
+
+
+@dataclass(frozen=True)
+class RunStep:
+    """One run's step of phased MAP-Elites, traced (not jitted): the engine maps it over
+    runs and devices. `score(genotypes, alpha, start)` is the task's α-aware scoring of a
+    batch (the engine's, split across devices where it has several)."""
+
+    map_elites: MAPElites
+    init_policies: Callable[[jax.Array, int], Any]
+    score: Callable[[Any, jax.Array, Any], tuple[jax.Array, jax.Array]]
+    batch_size: int
+
+    def generation(
+        self, repertoire: MapElitesRepertoire, alpha: jax.Array, start: Any, key: jax.Array
+    ) -> tuple[MapElitesRepertoire, Metrics, jax.Array, jax.Array]:
+        """One generation at actuator scale alpha: offspring of the archive's elites by
+        iso+line variation, or fresh random policies if the archive is empty (the first
+        generation, or after extinction emptied it), scored and inserted. Returns the
+        archive, QDax's metrics, how many results were non-finite and whether it reseeded."""
+        ask_key, score_key = jax.random.split(key)
+        del score_key  # episodes start deterministically; the key is split as QDax's loop does
+        empty = ~jnp.any(repertoire.fitnesses > -jnp.inf)
+        genotypes = jax.lax.cond(
+            empty,
+            lambda: self.init_policies(ask_key, self.batch_size),
+            lambda: self.map_elites.ask(repertoire, None, ask_key)[0],
+        )
+        fitnesses, descriptors = self.score(genotypes, alpha, start)
+        repertoire, metrics, dropped = tell_finite(self.map_elites, genotypes, fitnesses, descriptors, repertoire)
+        return repertoire, metrics, dropped, empty
+
+    def reevaluate_chunk(
+        self,
+        fresh: MapElitesRepertoire,
+        source: Any,
+        index: jax.Array,
+        valid: jax.Array,
+        alpha: jax.Array,
+        start: Any,
+        extinction: jax.Array,
+        key: jax.Array,
+    ) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
+        """Re-score one chunk of the elites of `source` (genotypes at `index`, `valid` ones
+        real) at alpha; those that survive extinction and score finite go into `fresh`.
+        Returns the archive, the run's next key and how many valid ones were non-finite."""
+        key, score_key, death_key = jax.random.split(key, 3)
+        del score_key
+        genotypes = jax.tree.map(lambda x: x[index], source)
+        fitnesses, descriptors = self.score(genotypes, alpha, start)
+        survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
+        fresh, dropped = insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
+        return fresh, key, dropped
+
+
+def cvt_centroids(
+    num_centroids: int, low: tuple[float, ...], high: tuple[float, ...], num_samples: int, key: jax.Array
+) -> jax.Array:
+    """QDax's CVT tessellation of the descriptor box."""
+    return compute_cvt_centroids(
+        num_descriptors=len(low),
+        num_init_cvt_samples=num_samples,
+        num_centroids=num_centroids,
+        minval=list(low),
+        maxval=list(high),
+        key=key,
+    )

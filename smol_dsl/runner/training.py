@@ -1,0 +1,323 @@
+"""The phase loop: runs trained together on the engine, logged, checkpointed, resumable.
+
+`train` is what `run_experiment` (one run) and `run_sweep` (many) both do once their
+directories are set up. Phase k of N trains at alpha_k = schedule.phase_alpha(k, N) of
+each run's schedule. At each phase boundary every archive is re-evaluated under its new
+alpha, thinned by its schedule's extinction probability and re-inserted into a fresh
+archive; a checkpoint is handed to the background writer right after, so an interrupted
+training resumes from its last boundary and ends with exactly the archives and metrics
+of an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from smol_dsl import Schedule
+from smol_dsl.results import rundir
+from smol_dsl.results.rundir import CHECKPOINT_FILE, MetricsLog
+from smol_dsl.runner.checkpoint import (
+    CheckpointWriter,
+    RunState,
+    archive_arrays,
+    checkpoint_arrays,
+    load_checkpoint,
+    save_checkpoint,
+    storage_error,
+)
+from smol_dsl.runner.config import RunConfig
+from smol_dsl.runner.engine import Engine, stack_runs
+from smol_dsl.runner.map_elites import cvt_centroids
+from smol_dsl.tasks.base import Task
+
+Progress = Callable[[list[dict[str, Any]], int], None]
+"""progress(the latest metrics row of every run, total generations)."""
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """One run to train: its schedule, settings (with its seed), name and run directory."""
+
+    schedule: Schedule
+    config: RunConfig
+    name: str
+    directory: Path | None = None
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What a finished run returns: its final archive, its metrics log and where it is."""
+
+    repertoire: Any  # qdax MapElitesRepertoire
+    metrics: list[dict[str, Any]]
+    config: RunConfig
+    alphas: np.ndarray
+    out_dir: Path | None
+    seconds: float
+
+    @property
+    def final(self) -> dict[str, Any]:
+        return self.metrics[-1]
+
+
+def schedule_key(seed: int) -> jax.Array:
+    """The key a run draws its schedule's random segments from (one per seed)."""
+    return jax.random.fold_in(jax.random.key(seed), 0x5CED)
+
+
+def owner(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
+    """What a checkpoint records about the runs it holds: the shared settings, and each
+    run's seed and schedule text, so that a checkpoint of other runs is refused."""
+    shared = json.loads(config.to_json())
+    del shared["seed"]
+    return {
+        "config": shared,
+        "runs": [{"seed": run.config.seed, "schedule": run.schedule.source} for run in runs],
+    }
+
+
+def metrics_row(
+    state: RunState, metrics: dict[str, float], alpha: float, event: str, non_finite: int
+) -> dict[str, Any]:
+    """The metrics.csv row of a run's state after an event."""
+    return rundir.metrics_row(
+        generation=state.generation,
+        phase=state.phase,
+        alpha=alpha,
+        event=event,
+        evaluations=state.evaluations,
+        reevaluations=state.reevaluations,
+        coverage=metrics["coverage"],
+        max_fitness=metrics["max_fitness"],
+        qd_score=metrics["qd_score"],
+        non_finite=non_finite,
+    )
+
+
+@contextlib.contextmanager
+def storage_errors(checkpoint: Path) -> Iterator[None]:
+    """Turn an OSError from writing a run's files (a full disk, a file system gone read-only)
+    into a RunError that names the file and says that `checkpoint` is intact to --resume from."""
+    try:
+        yield
+    except OSError as error:
+        raise storage_error(error, checkpoint, fallback=checkpoint.parent) from None
+
+
+class Training:
+    """Runs of one task and settings trained together on an engine, generation by generation.
+
+    All runs reach their phase boundaries together. Per run: its own seed (CVT centroids,
+    episode start, keys), schedule (alpha per phase, extinction) and archive; the batched
+    arrays (archives, keys, alphas, starts) have the runs axis first, padded to the engine's
+    runs axis with copies of the last run whose results are dropped.
+    """
+
+    def __init__(
+        self,
+        engine: Engine,
+        task: Task,
+        runs: list[PlannedRun],
+        config: RunConfig,
+        checkpoint: Path | None,
+        progress: Progress | None = None,
+    ) -> None:
+        self.engine, self.task, self.runs, self.config = engine, task, runs, config
+        self.checkpoint, self.progress = checkpoint, progress
+        self.owner = owner(runs, config)
+        padded = runs + [runs[-1]] * (engine.padded_runs(len(runs)) - len(runs))
+        seeds = [run.config.seed for run in padded]
+        self.alphas = np.stack(
+            [run.schedule.checked_phase_alphas(config.num_phases, schedule_key(run.config.seed)) for run in padded]
+        )
+        starts = {seed: task.episode_start(seed) for seed in dict.fromkeys(seeds)}
+        self.starts = engine.put(stack_runs([starts[seed] for seed in seeds]))
+        self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
+        self._seeds = seeds
+        self.repertoires: Any = None
+        self.keys: Any = None
+        self.states: list[RunState] = []
+        self.logs: list[MetricsLog] = []
+
+    # ------------------------------------------------------------------ start
+    def start(self, saved: tuple[Any, Any, list[RunState]] | None) -> None:
+        """Continue from a loaded checkpoint, or score every run's initial population; then
+        (re)write every run's metrics.csv."""
+        if saved is not None:
+            repertoires, keys, self.states = saved
+            extra = len(self._seeds) - len(self.runs)
+            repertoires, keys = jax.tree.map(lambda x: jnp.concatenate([x] + [x[-1:]] * extra), (repertoires, keys))
+            self.repertoires, self.keys = self.engine.put(repertoires), self.engine.put(keys)
+        else:
+            self._initial_population()
+        self.logs = [
+            MetricsLog(run.directory / rundir.METRICS_FILE if run.directory is not None else None, state.rows)
+            for run, state in zip(self.runs, self.states, strict=True)
+        ]
+        self._show()
+
+    def load(self) -> tuple[Any, Any, list[RunState]] | None:
+        """The checkpoint's archives, keys and states, or None if there is none yet; a
+        RunError for a damaged one or one of other runs."""
+        if self.checkpoint is None:
+            return None
+        template = self.task.init_policies(jax.random.key(0), 1)
+        return load_checkpoint(
+            self.checkpoint, template, len(self.runs), self.config.num_centroids, self.task.descriptor_size, self.owner
+        )
+
+    def _initial_population(self) -> None:
+        main_keys, init_keys, centroids = [], [], {}
+        for seed in self._seeds:
+            key, cvt_key, init_key = jax.random.split(jax.random.key(seed), 3)
+            main_keys.append(key)
+            init_keys.append(init_key)
+            if seed not in centroids:
+                centroids[seed] = cvt_centroids(
+                    self.config.num_centroids,
+                    self.task.descriptor_low,
+                    self.task.descriptor_high,
+                    self.config.num_init_cvt_samples,
+                    cvt_key,
+                )
+        archives = self.engine.empty_archives(jnp.stack([centroids[seed] for seed in self._seeds]))
+        self.repertoires, metrics, dropped, _ = self.engine.step(
+            archives, self._alphas_of(0), self.starts, self.engine.put(jnp.stack(init_keys))
+        )
+        self.keys = self.engine.put(jnp.stack(main_keys))
+        batch = self.config.batch_size
+        self.states = []
+        for r in range(len(self.runs)):
+            state = RunState(0, 0, batch, 0, int(dropped[r]), [])
+            state.rows.append(metrics_row(state, _run_metrics(metrics, r), self.alphas[r, 0], "init", dropped[r]))
+            self.states.append(state)
+        if self.checkpoint is not None:
+            save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
+
+    # ------------------------------------------------------------------ training
+    def train(self, stop_after_generation: int | None = None) -> None:
+        """Train every run to the end of its budget (or to `stop_after_generation`, as an
+        interruption would stop it, for tests); checkpoints reach the disk meanwhile."""
+        with CheckpointWriter() as writer:
+            for generation in range(self.states[0].generation + 1, self.config.generations + 1):
+                if stop_after_generation is not None and generation > stop_after_generation:
+                    break
+                phase = self.config.phase_of_generation(generation)
+                if phase != self.states[0].phase:
+                    self.reevaluate(phase)
+                    if self.checkpoint is not None:
+                        arrays = partial(checkpoint_arrays, self.repertoires, self.keys, self.states, self.owner)
+                        writer.offer(self.checkpoint, arrays)
+                self.generation(generation, phase)
+
+    def reevaluate(self, phase: int) -> None:
+        """Every archive re-scored at its run's alpha of `phase`, thinned by extinction."""
+        self.keys, subkeys = self.engine.split(self.keys)
+        self.repertoires, evaluated, dropped = self.engine.reevaluate(
+            self.repertoires, self._alphas_of(phase), self.starts, self.extinctions, subkeys
+        )
+        for r, state in enumerate(self.states):
+            state.phase = phase
+            state.reevaluations += int(evaluated[r])
+            state.non_finite += int(dropped[r])
+        self._record(self.engine.metrics(self.repertoires), ["reevaluate"] * len(self.runs), dropped)
+
+    def generation(self, generation: int, phase: int) -> None:
+        """One generation of every run at its alpha of `phase`."""
+        self.keys, subkeys = self.engine.split(self.keys)
+        self.repertoires, metrics, dropped, reseeded = self.engine.step(
+            self.repertoires, self._alphas_of(phase), self.starts, subkeys
+        )
+        for r, state in enumerate(self.states):
+            state.generation = generation
+            state.evaluations += self.config.batch_size
+            state.non_finite += int(dropped[r])
+        self._record(metrics, ["reseed" if reseeded[r] else "train" for r in range(len(self.runs))], dropped)
+
+    def _alphas_of(self, phase: int) -> jax.Array:
+        return self.engine.put(jnp.asarray(self.alphas[:, phase], dtype=jnp.float32))
+
+    def _record(self, metrics: dict[str, np.ndarray], events: list[str], dropped: np.ndarray) -> None:
+        for r, (state, log) in enumerate(zip(self.states, self.logs, strict=True)):
+            row = metrics_row(state, _run_metrics(metrics, r), self.alphas[r, state.phase], events[r], dropped[r])
+            state.rows.append(row)
+            log.append(row)
+        self._show()
+
+    def _show(self) -> None:
+        if self.progress is not None:
+            self.progress([state.rows[-1] for state in self.states], self.config.generations)
+
+    # ------------------------------------------------------------------ end
+    @property
+    def finished(self) -> bool:
+        return self.states[0].generation >= self.config.generations
+
+    def results(self, started: float) -> list[RunResult]:
+        """Every run's result; when training is finished, its run directory gets its final
+        checkpoint (marked finished), archive.npz and figures."""
+        host_keys = jax.device_get(jax.random.key_data(self.keys))
+        results = []
+        for r, (run, state) in enumerate(zip(self.runs, self.states, strict=True)):
+            repertoire = jax.tree.map(lambda x, r=r: x[r], self.repertoires)
+            if run.directory is not None and self.finished:
+                state.finished = True
+                single = jax.tree.map(lambda x, r=r: x[r : r + 1], self.repertoires)
+                key = jax.random.wrap_key_data(host_keys[r : r + 1])
+                save_checkpoint(run.directory / CHECKPOINT_FILE, single, key, [state], owner([run], run.config))
+                finish_run_directory(run.directory, state, repertoire, self.task, run.config, run.schedule)
+            seconds = time.perf_counter() - started
+            results.append(RunResult(repertoire, state.rows, run.config, self.alphas[r], run.directory, seconds))
+        if self.checkpoint is not None and self.finished and self.checkpoint.name != CHECKPOINT_FILE:
+            save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
+        return results
+
+
+def finish_run_directory(
+    directory: Path, state: RunState, repertoire: Any, task: Task, config: RunConfig, schedule: Schedule
+) -> None:
+    """Write a finished run's archive.npz and figures."""
+    from smol_dsl.results.figures import save_run_figures
+
+    arrays = archive_arrays(repertoire)
+    rundir.write_archive(directory / rundir.ARCHIVE_FILE, arrays)
+    bounds = (task.descriptor_low, task.descriptor_high)
+    save_run_figures(directory, state.rows, arrays, bounds, config, schedule)
+
+
+def _run_metrics(metrics: dict[str, np.ndarray], run: int) -> dict[str, float]:
+    return {name: float(values[run]) for name, values in metrics.items()}
+
+
+def train(
+    engine: Engine,
+    task: Task,
+    runs: list[PlannedRun],
+    config: RunConfig,
+    *,
+    checkpoint: Path | None,
+    resume: bool,
+    progress: Progress | None,
+    stop_after_generation: int | None,
+    started: float,
+) -> list[RunResult]:
+    """Train `runs` together from scratch or from `checkpoint`; return one result per run.
+    From the first checkpoint on, a file that cannot be written is a RunError that says the
+    last checkpoint is intact."""
+    training = Training(engine, task, runs, config, checkpoint, progress)
+    saved = training.load() if resume else None
+    with storage_errors(checkpoint) if checkpoint is not None else contextlib.nullcontext():
+        training.start(saved)
+        training.train(stop_after_generation)
+        return training.results(started)

@@ -1,0 +1,93 @@
+"""The task registry: one `TaskSpec` per task, registered in one line (as Brax's `envs`).
+
+A spec is plain data plus a factory, so that the command line, the presets and `report`
+can list tasks, check names and read descriptor bounds without importing JAX or Brax; the
+factory (a callable, or a ``"module:function"`` path imported on first use) builds the
+`Task` only when a run needs it.
+
+>>> from smol_dsl.tasks import task_spec
+>>> task_spec("walker2d").descriptor_high
+(1.0, 1.0)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from smol_dsl.tasks.base import Task
+
+PRESET_NAMES = ("quick", "paper")
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """Everything smol-dsl knows about a task before building it.
+
+    `presets` maps "quick" and "paper" to RunConfig fields (batch_size, episode_length,
+    hidden_layer_sizes, and for quick the evaluations); `default_metric` is the metrics.csv
+    column `report` compares by default.
+    """
+
+    name: str
+    help: str
+    environment: str  # the Brax environment's name
+    factory: str | Callable[..., Task]  # (spec, *, episode_length, hidden_layer_sizes, backend) -> Task
+    descriptor_low: tuple[float, ...]
+    descriptor_high: tuple[float, ...]
+    reward_offset: float  # per step, keeps rewards positive: the QD score adds offset * episode_length per cell
+    default_metric: str
+    presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    details: Mapping[str, Any] = field(default_factory=dict)  # for the factory, e.g. the feet's link names
+
+    def __post_init__(self) -> None:
+        if len(self.descriptor_low) != len(self.descriptor_high):
+            raise ValueError(f"task {self.name}: descriptor_low and descriptor_high differ in length")
+        missing = [name for name in PRESET_NAMES if name not in self.presets]
+        if missing:
+            raise ValueError(f"task {self.name}: no {' or '.join(missing)} preset")
+
+    @property
+    def descriptor_size(self) -> int:
+        return len(self.descriptor_low)
+
+    def make(self, **options: Any) -> Task:
+        """Build the task (imports JAX and Brax); options (episode_length,
+        hidden_layer_sizes, backend) go to the factory."""
+        factory = self.factory
+        if isinstance(factory, str):
+            module, _, function = factory.partition(":")
+            factory = getattr(import_module(module), function)
+        return factory(self, **options)
+
+
+_TASKS: dict[str, TaskSpec] = {}
+
+
+def register(spec: TaskSpec) -> TaskSpec:
+    """Add a task to the registry (a name can be registered once)."""
+    if spec.name in _TASKS and _TASKS[spec.name] != spec:
+        raise ValueError(f"a task named {spec.name!r} is already registered")
+    _TASKS[spec.name] = spec
+    return spec
+
+
+def task_names() -> tuple[str, ...]:
+    """The registered tasks' names, in registration order."""
+    return tuple(_TASKS)
+
+
+def task_spec(name: str) -> TaskSpec:
+    """The spec of a registered task; a ValueError listing the tasks for an unknown name."""
+    try:
+        return _TASKS[name]
+    except KeyError:
+        raise ValueError(f"unknown task {name!r}; the tasks are {', '.join(_TASKS)}") from None
+
+
+def make_task(name: str, **options: Any) -> Task:
+    """Build a registered task by name: `make_task("walker2d", episode_length=100)`."""
+    return task_spec(name).make(**options)
