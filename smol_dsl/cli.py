@@ -118,13 +118,14 @@ def build_parser() -> argparse.ArgumentParser:
         "paper's experiment (1e7 evaluations, 100 phases, 1024 cells; for a GPU). Writes a run directory; "
         "see docs/runner.md.",
     )
-    run.add_argument("task", metavar="TASK", help="walker2d, halfcheetah or ant_omni")
+    run.add_argument("task", metavar="TASK", help=_tasks_help())
     run.add_argument("schedule", metavar="SCHEDULE", help="a .sched path or a bundled name")
     _add_run_options(run)
     run.add_argument("--seed", type=_int, default=None, metavar="S", help="random seed, from 0 to 2**32-1 (default 0)")
     run.add_argument("--out", metavar="DIR", help="run directory (default runs/TASK-SCHEDULE-seedS)")
     run.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_devices_option(run, "split each generation's population across the first D devices")
 
     sweep = commands.add_parser(
         "sweep",
@@ -134,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
         "per core), and each gets a run directory in `run`'s format under --out. Then `smol-dsl report DIR`. "
         "See docs/tutorial.md and docs/scaling.md.",
     )
-    sweep.add_argument("task", metavar="TASK", help="walker2d, halfcheetah or ant_omni")
+    sweep.add_argument("task", metavar="TASK", help=_tasks_help())
     sweep.add_argument("schedules", nargs="+", metavar="SCHEDULE", help="a .sched path or a bundled name")
     sweep.add_argument("--seeds", type=_positive_int, default=5, metavar="N", help="seeds per schedule (default 5)")
     sweep.add_argument(
@@ -144,13 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--out", metavar="DIR", help="sweep directory (default runs/TASK-sweep)")
     sweep.add_argument("--resume", action="store_true", help="continue the sweep in --out from its last checkpoint")
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
-    sweep.add_argument(
-        "--devices",
-        type=_positive_int,
-        default=None,
-        metavar="D",
-        help="use the first D devices (default: all; on a CPU-only machine one device per core)",
-    )
+    _add_devices_option(sweep, "use the first D devices")
     sweep.add_argument(
         "--runs-per-step",
         type=_positive_int,
@@ -192,10 +187,56 @@ def build_parser() -> argparse.ArgumentParser:
         "--metric",
         default=None,
         metavar="NAME",
-        help="final score: max_fitness, coverage or qd_score (default: the paper's, max_fitness for "
-        "walker2d and halfcheetah, coverage for ant_omni)",
+        help=f"final score: max_fitness, coverage or qd_score (default: the task's, {_default_metrics_help()})",
     )
     return parser
+
+
+def _tasks_help() -> str:
+    """The registered tasks, each with its one-line help (the registry needs no JAX)."""
+    from smol_dsl.tasks import task_names, task_spec
+
+    return "; ".join(f"{name}: {task_spec(name).help}" for name in task_names())
+
+
+def _default_metrics_help() -> str:
+    from smol_dsl.tasks import task_names, task_spec
+
+    by_metric: dict[str, list[str]] = {}
+    for name in task_names():
+        by_metric.setdefault(task_spec(name).default_metric, []).append(name)
+    return ", ".join(f"{metric} for {' and '.join(names)}" for metric, names in by_metric.items())
+
+
+def _check_task(name: str) -> None:
+    from smol_dsl.tasks import task_spec
+
+    try:
+        task_spec(name)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+
+
+def _add_devices_option(command: argparse.ArgumentParser, what: str) -> None:
+    command.add_argument(
+        "--devices",
+        type=_positive_int,
+        default=None,
+        metavar="D",
+        help=f"{what} (default: all; on a CPU-only machine one device per core)",
+    )
+
+
+def _devices(args: argparse.Namespace) -> list[Any]:
+    """The local devices, or the first --devices of them."""
+    import jax
+
+    devices = jax.local_devices()
+    if args.devices is not None:
+        if args.devices > len(devices):
+            raise UsageError(f"--devices {args.devices}: this machine has {len(devices)} ({devices[0].platform})")
+        devices = devices[: args.devices]
+    return devices
 
 
 def _add_run_options(command: argparse.ArgumentParser) -> None:
@@ -295,10 +336,7 @@ def _config(args: argparse.Namespace, seed: int | None) -> RunConfig:
 
 def _run(args: argparse.Namespace) -> int:
     from smol_dsl import ScheduleError, load
-    from smol_dsl.tasks import TASK_NAMES
-
-    if args.task not in TASK_NAMES:
-        raise UsageError(f"unknown task {args.task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    _check_task(args.task)
     _check_out(args.out)
     if args.seed is not None:
         check_seed(args.seed, "--seed")
@@ -327,9 +365,8 @@ def _run(args: argparse.Namespace) -> int:
         f"{config.num_centroids} cells, {config.episode_length}-step episodes, seed {config.seed} -> {out}",
         file=sys.stderr,
     )
-    import jax
-
-    fit = partial(fit_sweep, config, 1, [config.seed], jax.local_devices())
+    devices = _devices(args)
+    fit = partial(fit_sweep, config, 1, [config.seed], devices)
     _announce_footprint("run", config, fit, out, args.dry_run)
     if args.dry_run:
         return EXIT_OK
@@ -343,7 +380,7 @@ def _run(args: argparse.Namespace) -> int:
         args,
         config,
         lambda progress: run_experiment(
-            args.task, schedule, config, out_dir=out, resume=args.resume, progress=progress
+            args.task, schedule, config, out_dir=out, resume=args.resume, progress=progress, devices=devices
         ),
     )
     print(summary_line(result, schedule))
@@ -367,10 +404,7 @@ def _with_progress(args: argparse.Namespace, config: RunConfig, start: Callable[
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from smol_dsl.tasks import TASK_NAMES
-
-    if args.task not in TASK_NAMES:
-        raise UsageError(f"unknown task {args.task!r}; the tasks are {', '.join(TASK_NAMES)}")
+    _check_task(args.task)
     _check_out(args.out)
     _check_seeds(args.first_seed, args.seeds)
     schedules, errors = _load_all(args.schedules)
@@ -389,14 +423,8 @@ def _sweep(args: argparse.Namespace) -> int:
             check_config(config, schedule)
     except ValueError as error:
         raise UsageError(str(error)) from None
-    import jax
-
     part = _sweep_part(args)
-    devices = jax.local_devices()
-    if args.devices is not None:
-        if args.devices > len(devices):
-            raise UsageError(f"--devices {args.devices}: this machine has {len(devices)} ({devices[0].platform})")
-        devices = devices[: args.devices]
+    devices = _devices(args)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     out = Path(args.out) if args.out is not None else Path("runs") / f"{args.task}-sweep"
     check_out_dir(out)
