@@ -150,10 +150,10 @@ def test_valid_schedules_parse_and_tile_the_run(spec: ScheduleSpec):
         assert got.kind == want.kind
         assert got.monotone == want.declared
         assert len(got.pieces) == len(want.pieces)
-        assert (got.random is not None) == (want.random is not None)
+        assert (got.draws is not None) == (want.random is not None)
         if want.random is not None:
-            assert got.random.count == want.random.count
-            assert Fraction(int(got.random.every.p), int(got.random.every.q)) == want.random.every
+            assert got.draws.count == want.random.count
+            assert Fraction(int(got.draws.every.p), int(got.draws.every.q)) == want.random.every
     assert schedule.tail_start == spec.tail_start
     assert schedule.extinction == (0.0 if spec.extinction is None else float(spec.extinction[1]))
     assert schedule.name == (spec.name or "schedule")
