@@ -37,9 +37,9 @@ ENCLOSURE_SECONDS = 10.0
 ENCLOSURE_PIECES = 64
 """Sub-intervals of the first enclosure."""
 REFINEMENTS = 256
+"""Bisections spent tightening each side of an enclosure."""
 SLOPE_ROUNDING = 1e-12
 """Relative slack for the sign of a slope from interval arithmetic (a few ulps of rounding)."""
-"""Bisections spent tightening each side of an enclosure."""
 
 Monotone = Literal["constant", "increasing", "decreasing", "random", "neither", "unknown"]
 

@@ -32,7 +32,6 @@ MAX_NESTING = 100
 def _example_hints() -> dict[str, list[str]]:
     """Hints for common mistakes, found by Lark's example matching: each hint lists a few
     wrong lines that fail the same way. Each shape's unit gives its own; the first match wins."""
-    kinds = "the segment kinds are " + ", ".join(shapes.keywords())
     return {
         "a segment is written `START .. END: SHAPE`, e.g. `0% .. 90%: linear 1.5 -> 1`": [
             "0% .. 90% linear 1 -> 2",
@@ -58,7 +57,7 @@ def _example_hints() -> dict[str, list[str]]:
             "name SMOL",
             "description hello",
         ],
-        kinds: [
+        "the segment kinds are " + ", ".join(shapes.keywords()): [
             "0% .. 90%: 1",
             "0% .. 90%: step 1",
             "0% .. 90%: lineal 1 -> 2",
