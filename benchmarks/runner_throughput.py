@@ -2,41 +2,57 @@
 
 Prints one `name: value` line per figure:
 
-- overhead_ratio: the runner's training evaluations/s over a raw vmapped rollout of the
-  same policies and batch (target >= 0.9);
-- vs_qdax_ratio: the runner's evaluations/s over QDax's own MAP-Elites loop (`update`)
-  with QDax's walker2d_uni scoring at the same settings (target >= 1.0);
+- run_all_devices_over_one_device: the engine's generation of one run (what `smol-dsl run`
+  does) with its population split across every local device, over the same on one device
+  (on a CPU, one XLA device per core, as the CLI sets up; target >= 1.6 on 2 cores);
+- overhead_ratio: the engine's training evaluations/s on one device over a raw vmapped
+  rollout of the same policies and batch (target >= 0.9);
+- vs_qdax_ratio: the engine's evaluations/s on one device over QDax's own MAP-Elites loop
+  (`update`) with QDax's walker2d_uni scoring at the same settings (target >= 1.0);
 - compiles_2_phases, compiles_20_phases: XLA compilations of a whole run of 2 and of 20
   phases, each in a fresh process (must be equal);
 - reeval_10pct_over_100pct: time to re-evaluate an archive 10% full over one 100% full
   (target <= 0.2).
 
-Usage: python benchmarks/runner_throughput.py [--batch-size 128] [--episode-length 100]
+The timed programs are interleaved (A, B, C, A, B, C, ...) and each figure is a ratio of
+medians, so a busy spell of the machine slows every program alike instead of one.
+
+Usage: python benchmarks/runner_throughput.py [--batch-size 128] [--episode-length 100] [--repeats 7]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import subprocess
 import sys
 import time
 import warnings
+from collections.abc import Callable
 
 warnings.filterwarnings("ignore")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):  # as the CLI does
+    flags = os.environ.get("XLA_FLAGS", "")
+    os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={os.cpu_count() or 1}".strip()
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 
-def timed(function, repeats: int) -> float:
-    """Seconds per call, after one warm-up call (compilation excluded)."""
-    jax.block_until_ready(function())
-    started = time.perf_counter()
+def interleaved(programs: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
+    """Median seconds per call of each program, after one warm-up call each (compilation
+    excluded), the programs taking turns: A, B, C, A, B, C, ..."""
+    for program in programs.values():
+        jax.block_until_ready(program())
+    seconds: dict[str, list[float]] = {name: [] for name in programs}
     for _ in range(repeats):
-        jax.block_until_ready(function())
-    return (time.perf_counter() - started) / repeats
+        for name, program in programs.items():
+            started = time.perf_counter()
+            jax.block_until_ready(program())
+            seconds[name].append(time.perf_counter() - started)
+    return {name: statistics.median(values) for name, values in seconds.items()}
 
 
 def count_compiles(phases: int, batch_size: int, episode_length: int) -> int:
@@ -69,7 +85,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch-size", type=int, default=128)
     parser.add_argument("--episode-length", type=int, default=100)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--count-compiles", type=int, metavar="PHASES", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.count_compiles is not None:
@@ -84,33 +100,41 @@ def main() -> None:
     from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
     from qdax.utils.metrics import default_qd_metrics
 
-    from smol_dsl.runner.algorithm import PhasedMapElites, cvt_centroids
+    from smol_dsl.runner.engine import Engine, stack_runs
+    from smol_dsl.runner.map_elites import cvt_centroids
     from smol_dsl.tasks import make_task
+    from smol_dsl.tasks.base import deterministic_init_state
 
     batch, length = args.batch_size, args.episode_length
-    print(f"# walker2d, batch {batch}, {length}-step episodes, {jax.devices()[0].platform}", flush=True)
-    task = make_task("walker2d", episode_length=length, init_key=jax.random.key(0))
+    devices = jax.local_devices()
+    print(
+        f"# walker2d, batch {batch}, {length}-step episodes, {len(devices)} {devices[0].platform} device(s)", flush=True
+    )
+    task = make_task("walker2d", episode_length=length)
     score = task.scoring_fn()
     params = task.init_policies(jax.random.key(1), batch)
+    start = deterministic_init_state(task.env, jax.random.key(0))  # QDax's start for key 0
     alpha = jnp.float32(1.0)
-
-    # raw vmapped rollouts of the same policies and batch
-    raw = timed(lambda: score(params, alpha, jax.random.key(0))[0], args.repeats)
-
-    # the runner's generation (ask, score at alpha, drop non-finite, tell)
-    algorithm = PhasedMapElites(
-        score, task.init_policies, batch_size=batch, qd_offset=task.qd_offset, iso_sigma=0.005, line_sigma=0.05
-    )
     centroids = cvt_centroids(1024, task.descriptor_low, task.descriptor_high, 50_000, jax.random.key(2))
-    repertoire, _, _, _ = algorithm.init(centroids, alpha, jax.random.key(3))
-    state = {"repertoire": repertoire, "key": jax.random.key(4)}
 
-    def runner_generation():
-        state["key"], key = jax.random.split(state["key"])
-        state["repertoire"], _, metrics, _ = algorithm.generation(state["repertoire"], None, alpha, key)
-        return metrics["coverage"]
+    def engine_generation(engine: Engine) -> tuple[Callable[[], object], dict]:
+        """One run's generations on `engine`, from an archive of one generation, and the
+        state they update (its archive)."""
+        put = engine.put
+        state = {"archive": engine.empty_archives(centroids[None]), "key": jax.random.key(4)}
+        inputs = (put(jnp.ones((1,), jnp.float32)), put(stack_runs([start])))
 
-    ours = timed(runner_generation, args.repeats)
+        def generation() -> object:
+            state["key"], key = jax.random.split(state["key"])
+            state["archive"], metrics, _, _ = engine.step(state["archive"], *inputs, put(key[None]))
+            return metrics["coverage"]
+
+        generation()  # the initial population
+        return generation, state
+
+    settings = dict(batch_size=batch, iso_sigma=0.005, line_sigma=0.05, num_runs=1)
+    one = Engine(task, devices=devices[:1], **settings)
+    every = Engine(task, devices=devices, **settings)
 
     # QDax's own loop: MAPElites.update with QDax's walker2d_uni scoring
     env = qdax_envs.create("walker2d_uni", episode_length=length)
@@ -130,25 +154,44 @@ def main() -> None:
     update = jax.jit(map_elites.update)
     qdax_state = {"repertoire": qdax_repertoire, "key": jax.random.key(6)}
 
-    def qdax_generation():
+    def qdax_generation() -> object:
         qdax_state["key"], key = jax.random.split(qdax_state["key"])
         qdax_state["repertoire"], _, metrics = update(qdax_state["repertoire"], qdax_emitter_state, key)
         return metrics["coverage"]
 
-    theirs = timed(qdax_generation, args.repeats)
-    print(f"raw_rollout_evals_per_s: {batch / raw:.1f}")
-    print(f"runner_evals_per_s: {batch / ours:.1f}")
-    print(f"qdax_evals_per_s: {batch / theirs:.1f}")
-    print(f"overhead_ratio: {raw / ours:.3f}")
-    print(f"vs_qdax_ratio: {theirs / ours:.3f}", flush=True)
+    one_generation, one_state = engine_generation(one)
+    medians = interleaved(
+        {
+            "raw": lambda: score(params, alpha, start)[0],
+            "one_device": one_generation,
+            "all_devices": engine_generation(every)[0],
+            "qdax": qdax_generation,
+        },
+        args.repeats,
+    )
+    print(f"raw_rollout_evals_per_s: {batch / medians['raw']:.1f}")
+    print(f"run_one_device_evals_per_s: {batch / medians['one_device']:.1f}")
+    print(f"run_all_devices_evals_per_s: {batch / medians['all_devices']:.1f}")
+    print(f"qdax_evals_per_s: {batch / medians['qdax']:.1f}")
+    print(f"run_all_devices_over_one_device: {medians['one_device'] / medians['all_devices']:.3f}")
+    print(f"overhead_ratio: {medians['raw'] / medians['one_device']:.3f}")
+    print(f"vs_qdax_ratio: {medians['qdax'] / medians['one_device']:.3f}", flush=True)
 
-    # re-evaluation cost: 10% vs 100% full archives of the same size
-    trained = state["repertoire"]  # the initial archive was donated to the first generation
+    # re-evaluation cost: 10% vs 100% full archives of the same size (one device)
+    for _ in range(3):
+        one_generation()
+    trained = jax.tree.map(lambda x: x[0], one_state["archive"])
     full = trained.replace(fitnesses=jnp.zeros_like(trained.fitnesses))
     full = full.replace(genotypes=jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), trained.genotypes))
     tenth = full.replace(fitnesses=jnp.where(jnp.arange(1024)[:, None] < 103, 0.0, -jnp.inf))
-    reeval_full = timed(lambda: algorithm.reevaluate(full, alpha, 0.0, jax.random.key(7))[0].fitnesses, 2)
-    reeval_tenth = timed(lambda: algorithm.reevaluate(tenth, alpha, 0.0, jax.random.key(7))[0].fitnesses, 2)
+    put = one.put
+    reeval_inputs = (put(jnp.ones((1,), jnp.float32)), put(stack_runs([start])), put(jnp.zeros((1,), jnp.float32)))
+
+    def reevaluate(archive: object) -> Callable[[], object]:
+        stacked = put(stack_runs([archive]))
+        return lambda: one.reevaluate(stacked, *reeval_inputs, put(jax.random.key(7)[None]))[0].fitnesses
+
+    reeval = interleaved({"full": reevaluate(full), "tenth": reevaluate(tenth)}, 3)
 
     compiles = {}
     for phases in (2, 20):
@@ -159,9 +202,9 @@ def main() -> None:
 
     print(f"compiles_2_phases: {compiles[2]}")
     print(f"compiles_20_phases: {compiles[20]}")
-    print(f"reeval_100pct_s: {reeval_full:.3f}")
-    print(f"reeval_10pct_s: {reeval_tenth:.3f}")
-    print(f"reeval_10pct_over_100pct: {reeval_tenth / reeval_full:.3f}")
+    print(f"reeval_100pct_s: {reeval['full']:.3f}")
+    print(f"reeval_10pct_s: {reeval['tenth']:.3f}")
+    print(f"reeval_10pct_over_100pct: {reeval['tenth'] / reeval['full']:.3f}")
 
 
 if __name__ == "__main__":
