@@ -36,8 +36,8 @@ from smol_dsl.results.rundir import (
     descriptor_bounds,
     is_run_directory,
     read_run,
-    task_spec,
 )
+from smol_dsl.tasks import task_spec
 
 METRICS = SCORES
 """The final scores a report can compare (`--metric`); each task has its default."""

@@ -46,6 +46,7 @@ import numpy as np
 
 from smol_dsl.errors import UserInputError
 from smol_dsl.runner.config import RunConfig
+from smol_dsl.tasks import task_spec
 
 if TYPE_CHECKING:
     from smol_dsl import Schedule
@@ -548,35 +549,10 @@ def _npy_header(bundle: zipfile.ZipFile, name: str) -> tuple[tuple[int, ...], np
 
 # ---------------------------------------------------------------------------- tasks
 def descriptor_bounds(task: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """A task's descriptor box (low, high), from the task registry (no Brax)."""
+    """A task's descriptor box (low, high), from the task registry (no Brax); a ValueError
+    for an unknown task."""
     spec = task_spec(task)
     return tuple(spec.descriptor_low), tuple(spec.descriptor_high)
-
-
-@dataclass(frozen=True)
-class _TaskFacts:  # TEMPORARY: until smol_dsl.tasks has its brax-free registry (task_spec)
-    name: str
-    descriptor_low: tuple[float, ...]
-    descriptor_high: tuple[float, ...]
-    default_metric: str
-
-
-def task_spec(task: str) -> Any:
-    """The task registry's facts about a task; a ValueError for an unknown one."""
-    from smol_dsl import tasks
-
-    if hasattr(tasks, "task_spec"):
-        return tasks.task_spec(task)
-    if task not in tasks.TASK_NAMES:
-        raise ValueError(f"unknown task {task!r}; the tasks are {', '.join(tasks.TASK_NAMES)}")
-    low, high = tasks.descriptor_bounds(task)
-    return _TaskFacts(task, low, high, "coverage" if task == "ant_omni" else "max_fitness")
-
-
-def task_names() -> tuple[str, ...]:
-    from smol_dsl.tasks import TASK_NAMES
-
-    return tuple(TASK_NAMES)
 
 
 # ---------------------------------------------------------------------------- reading
@@ -641,10 +617,8 @@ def read_config(path: Path) -> RunConfig:
             raise RunDirectoryError(f"{path}: {name} is {json.dumps(value)[:40]}, not {expected}; {fix}")
     try:
         task_spec(data["task"])
-    except ValueError:
-        raise RunDirectoryError(
-            f"{path}: unknown task {data['task']!r} (the tasks are {', '.join(task_names())}); {fix}"
-        ) from None
+    except ValueError as error:  # "unknown task 'x'; the tasks are ..."
+        raise RunDirectoryError(f"{path}: {error}; {fix}") from None
     for name in CONFIG_AT_LEAST_ONE:
         if name in data and data[name] < 1:
             raise RunDirectoryError(f"{path}: {name} is {data[name]}, but must be at least 1; {fix}")
