@@ -20,10 +20,10 @@ import pytest
 from smol_dsl.cli import main
 from smol_dsl.errors import UserInputError
 from smol_dsl.results import rundir as rundir_module
-from smol_dsl.results.rundir import LOCK_FILE
+from smol_dsl.results.rundir import LOCK_FILE, atomic_write
 from smol_dsl.runner import RunError, preset_config, run_experiment, run_sweep, schedule_key
 from smol_dsl.runner import checkpoint as checkpoint_module
-from smol_dsl.runner.checkpoint import CheckpointWriter, atomic_write, load_checkpoint
+from smol_dsl.runner.checkpoint import CheckpointWriter, load_checkpoint
 from smol_dsl.runner.directories import prepare_run_directory, prepare_sweep_directory
 from smol_dsl.runner.lock import DirectoryLock
 from smol_dsl.runner.sweep import plan_sweep
