@@ -357,7 +357,7 @@ def test_a_checkpoint_shaped_for_another_policy_is_refused(reference):
     other = make_task("walker2d", episode_length=10, hidden_layer_sizes=(8, 8))
     template = other.init_policies(jax.random.key(0), 1)
     with pytest.raises(
-        RunError, match=r"its genotypes/params/Dense_0/bias has shape \(16, 64\), but this one needs \(16, 8\)"
+        RunError, match=r"its genotypes/params/Dense_0/bias has shape \(1, 16, 64\), but this one needs \(1, 16, 8\)"
     ):
         load_checkpoint(reference / "checkpoint.npz", template, 1, 16, 2)
 
