@@ -114,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="train locomotion controllers with MAP-Elites under a schedule",
         description="Train MLP controllers for a Brax task with MAP-Elites while the schedule scales the "
         "actuators' gear (phase k of N at alpha_k; the archive is re-evaluated at every phase boundary). "
-        "The default preset `quick` finishes in about 5 minutes on 2 CPU cores; `--preset paper` is the "
+        "The default preset `quick` finishes in about 2 minutes on 2 CPU cores; `--preset paper` is the "
         "paper's experiment (1e7 evaluations, 100 phases, 1024 cells; for a GPU). Writes a run directory; "
         "see docs/runner.md.",
     )
@@ -336,6 +336,7 @@ def _config(args: argparse.Namespace, seed: int | None) -> RunConfig:
 
 def _run(args: argparse.Namespace) -> int:
     from smol_dsl import ScheduleError, load
+
     _check_task(args.task)
     _check_out(args.out)
     if args.seed is not None:
@@ -372,7 +373,7 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if config.preset == "quick":
         print(
-            "smol-dsl run: the quick preset is sized for about 5 minutes on 2 CPU cores; "
+            "smol-dsl run: the quick preset is sized for about 2 minutes on 2 CPU cores; "
             "--preset paper runs the paper's experiment (1e7 evaluations; for a GPU)",
             file=sys.stderr,
         )
@@ -575,7 +576,7 @@ def _os_error_text(error: OSError) -> str:
 
 def use_cpu_cores_as_devices() -> None:
     """Before JAX starts: split a CPU into one XLA device per core (unless XLA_FLAGS
-    already says how many), so that a sweep's runs use every core. It changes nothing
+    already says how many), so that a run's population and a sweep's runs use every core. It changes nothing
     on GPUs, whose devices JAX prefers."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
@@ -587,7 +588,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `smol-dsl` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)  # exits with status 2 on bad flags
-    if args.command == "sweep":
+    if args.command in ("run", "sweep"):
         use_cpu_cores_as_devices()
     handlers = {"check": _check, "plot": _plot, "run": _run, "sweep": _sweep, "report": _report}
     try:
