@@ -33,11 +33,10 @@ from smol_dsl.results.rundir import (
     SCORES,
     RunDirectoryError,
     RunRecord,
-    descriptor_bounds,
     is_run_directory,
     read_run,
 )
-from smol_dsl.tasks import task_spec
+from smol_dsl.tasks import descriptor_bounds, task_spec
 
 METRICS = SCORES
 """The final scores a report can compare (`--metric`); each task has its default."""

@@ -470,7 +470,7 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
             f"writes it, {_leave_out(directory)}"
         )
     cells = config.num_centroids
-    size = len(descriptor_bounds(config.task)[0])
+    size = task_spec(config.task).descriptor_size
     expected = {"fitnesses": (cells,), "descriptors": (cells, size), "centroids": (cells, size), "filled": (cells,)}
 
     def check(name: str, shape: tuple[int, ...], dtype: np.dtype) -> None:
@@ -545,14 +545,6 @@ def _npy_header(bundle: zipfile.ZipFile, name: str) -> tuple[tuple[int, ...], np
         else:
             return None
         return shape, dtype
-
-
-# ---------------------------------------------------------------------------- tasks
-def descriptor_bounds(task: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """A task's descriptor box (low, high), from the task registry (no Brax); a ValueError
-    for an unknown task."""
-    spec = task_spec(task)
-    return tuple(spec.descriptor_low), tuple(spec.descriptor_high)
 
 
 # ---------------------------------------------------------------------------- reading

@@ -13,13 +13,13 @@ import contextlib
 import dataclasses
 import json
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from smol_dsl import Schedule
 from smol_dsl.results.rundir import CONFIG_FILE, LOCK_FILE, SCHEDULE_FILE, SWEEP_FILE, write_run_files, write_text
-from smol_dsl.runner.checkpoint import storage_error, write_failure
+from smol_dsl.runner.checkpoint import write_failure
 from smol_dsl.runner.config import RunConfig, RunError
 from smol_dsl.runner.lock import DirectoryLock
 
@@ -31,16 +31,6 @@ def run_name(task: str, schedule: Schedule, seed: int) -> str:
     """A run directory's name: TASK-SCHEDULE-seedS (SCHEDULE: the file's stem, or its name)."""
     stem = Path(schedule.path).stem if schedule.path else schedule.name
     return f"{task}-{stem}-seed{seed}"
-
-
-@contextlib.contextmanager
-def storage_errors(checkpoint: Path) -> Iterator[None]:
-    """Turn an OSError from writing a run's files (a full disk, a file system gone read-only)
-    into a RunError that names the file and says that `checkpoint` is intact to --resume from."""
-    try:
-        yield
-    except OSError as error:
-        raise storage_error(error, checkpoint, fallback=checkpoint.parent) from None
 
 
 def out_path(out_dir: str | Path | None) -> Path | None:

@@ -265,21 +265,27 @@ class Training:
         return self.states[0].generation >= self.config.generations
 
     def results(self, started: float) -> list[RunResult]:
-        """Every run's result; when training is finished, its run directory gets its final
-        checkpoint (marked finished), archive.npz and figures."""
+        """Every run's result; when training is finished, its run directory gets archive.npz
+        and figures, and the first time, its checkpoint marked finished (and so does a
+        sweep's own checkpoint)."""
+        newly_finished = self.finished and not all(state.finished for state in self.states)
         host_keys = jax.device_get(jax.random.key_data(self.keys))
         results = []
         for r, (run, state) in enumerate(zip(self.runs, self.states, strict=True)):
             repertoire = jax.tree.map(lambda x, r=r: x[r], self.repertoires)
             if run.directory is not None and self.finished:
-                state.finished = True
-                single = jax.tree.map(lambda x, r=r: x[r : r + 1], self.repertoires)
-                key = jax.random.wrap_key_data(host_keys[r : r + 1])
-                save_checkpoint(run.directory / CHECKPOINT_FILE, single, key, [state], owner([run], run.config))
+                if newly_finished:
+                    state.finished = True
+                    single = jax.tree.map(lambda x, r=r: x[r : r + 1], self.repertoires)
+                    key = jax.random.wrap_key_data(host_keys[r : r + 1])
+                    save_checkpoint(run.directory / CHECKPOINT_FILE, single, key, [state], owner([run], run.config))
                 finish_run_directory(run.directory, state, repertoire, self.task, run.config, run.schedule)
             seconds = time.perf_counter() - started
             results.append(RunResult(repertoire, state.rows, run.config, self.alphas[r], run.directory, seconds))
-        if self.checkpoint is not None and self.finished and self.checkpoint.name != CHECKPOINT_FILE:
+        run_checkpoints = {run.directory / CHECKPOINT_FILE for run in self.runs if run.directory is not None}
+        if newly_finished and self.checkpoint is not None and self.checkpoint not in run_checkpoints:
+            for state in self.states:
+                state.finished = True
             save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
         return results
 
