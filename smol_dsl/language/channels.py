@@ -1,0 +1,138 @@
+"""Channels: the physical parameters a schedule can change, and the bodies that have them.
+
+A `.sched` file schedules one or more channels, each a factor on one physical parameter of
+the task's body, 1 being the standard body:
+
+- `gear`: every actuator's gear, so its strength (the paper's alpha); `gear[left_leg]` or
+  `gear[thigh_joint, leg_joint]`: only those actuators (a name, or a group of the task);
+- `mass`: every link's mass and rotational inertia, scaled together so that the body stays
+  physical (as if its density changed); `mass[torso]`: only those links;
+- `friction`: the friction of every contact (Brax takes the larger of the two geoms'
+  coefficients, and every geom's is scaled, so the ground's contacts scale by the factor);
+- `gravity`: the gravity vector.
+
+Factors multiply: an actuator under `gear` and `gear[left_leg]` gets their product.
+A `BodyPlan` names a task's actuators and links (in the order of Brax's `sys`) and its
+groups, so that channels can be checked, and listed, without importing JAX or Brax.
+
+>>> Channel.parse("gear[left_leg]").targets
+('left_leg',)
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class ChannelKind:
+    """One kind of physical parameter: its keyword, what `[...]` selects, what it scales."""
+
+    keyword: str
+    part: str | None  # "actuators" or "links": what targets in [...] name; None: no targets
+    scales: str  # what the factor multiplies, for messages and docs
+
+
+CHANNEL_KINDS: dict[str, ChannelKind] = {
+    kind.keyword: kind
+    for kind in (
+        ChannelKind("gear", "actuators", "the actuators' gear (their strength)"),
+        ChannelKind("mass", "links", "the links' mass and rotational inertia, together"),
+        ChannelKind("friction", None, "the friction of every contact (the ground's included)"),
+        ChannelKind("gravity", None, "gravity"),
+    )
+}
+
+_CANONICAL = re.compile(r"^([a-z]+)(?:\[([^\[\]]+)\])?$")
+
+
+@dataclass(frozen=True, order=True)
+class Channel:
+    """A scheduled parameter: a kind, and the actuators or links it is limited to (none: all).
+
+    Its `name` is how files, metrics.csv columns and messages write it: `gear`,
+    `gear[left_leg]`, `mass[torso,thigh]`.
+    """
+
+    kind: str
+    targets: tuple[str, ...] = ()
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}[{','.join(self.targets)}]" if self.targets else self.kind
+
+    @property
+    def quantity(self) -> str:
+        """How certificates and messages call its value: `alpha` for all actuators' gear (the
+        paper's name), else the channel's name."""
+        return "alpha" if self == GEAR else self.name
+
+    @classmethod
+    def parse(cls, name: str) -> Channel:
+        """The channel a canonical name (`Channel.name`) writes; ValueError if it is not one."""
+        match = _CANONICAL.match(name.replace(" ", ""))
+        if match is None or match.group(1) not in CHANNEL_KINDS:
+            raise ValueError(f"{name!r} is not a channel; the channels are {', '.join(CHANNEL_KINDS)}")
+        targets = tuple(match.group(2).split(",")) if match.group(2) else ()
+        return cls(match.group(1), targets)
+
+    def __str__(self) -> str:
+        return self.name
+
+
+GEAR = Channel("gear")
+"""Every actuator's gear: the paper's alpha, and the one channel of a file that declares none."""
+
+
+@dataclass(frozen=True)
+class BodyPlan:
+    """The parts of a task's body that channels can name, in the order of Brax's `sys`.
+
+    `actuators[i]` names actuator i (by the joint it drives), `links[j]` link j; groups name
+    several at once (`left_leg`). A target in `[...]` is a name or a group of the kind's part.
+    """
+
+    actuators: tuple[str, ...]
+    links: tuple[str, ...]
+    actuator_groups: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    link_groups: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def names(self, part: str) -> tuple[str, ...]:
+        return self.actuators if part == "actuators" else self.links
+
+    def groups(self, part: str) -> Mapping[str, tuple[str, ...]]:
+        return self.actuator_groups if part == "actuators" else self.link_groups
+
+    def unknown_targets(self, channel: Channel) -> tuple[str, ...]:
+        """The channel's targets that are neither a name nor a group of its kind's part."""
+        part = CHANNEL_KINDS[channel.kind].part
+        if part is None:
+            return channel.targets
+        known = set(self.names(part)) | set(self.groups(part))
+        return tuple(target for target in channel.targets if target not in known)
+
+    def indices(self, channel: Channel) -> tuple[int, ...] | None:
+        """Which actuators or links the channel scales (sorted), or None for all of them
+        (and for friction and gravity); ValueError for a target the body lacks."""
+        part = CHANNEL_KINDS[channel.kind].part
+        if part is None or not channel.targets:
+            return None
+        unknown = self.unknown_targets(channel)
+        if unknown:
+            raise ValueError(f"{channel.name}: no {part} named {', '.join(unknown)}; {self.describe_part(part)}")
+        names, groups = self.names(part), self.groups(part)
+        chosen: set[int] = set()
+        for target in channel.targets:
+            for name in groups.get(target, (target,)):
+                chosen.add(names.index(name))
+        return tuple(sorted(chosen))
+
+    def describe_part(self, part: str) -> str:
+        """`actuators: a, b, c; groups: left_leg (a, b)`: what a channel of this part can name."""
+        text = f"{part}: {', '.join(self.names(part))}"
+        groups = self.groups(part)
+        if groups:
+            text += "; groups: " + ", ".join(f"{g} ({', '.join(members)})" for g, members in groups.items())
+        return text
