@@ -8,6 +8,7 @@ rollouts run at ~210 walker2d evaluations/s at 100 steps, ~50 halfcheetah, ~90 a
 
 from __future__ import annotations
 
+from smol_dsl.language.channels import BodyPlan
 from smol_dsl.tasks.registry import TaskSpec
 
 DUTY_FACTORS = ((0.0, 0.0), (1.0, 1.0))  # two feet, each in contact a proportion of the steps
@@ -26,6 +27,15 @@ WALKER2D = TaskSpec(
         "quick": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("foot", "foot_left")},
+    body=BodyPlan(
+        actuators=("thigh_joint", "leg_joint", "foot_joint", "thigh_left_joint", "leg_left_joint", "foot_left_joint"),
+        links=("torso", "thigh", "leg", "foot", "thigh_left", "leg_left", "foot_left"),
+        actuator_groups={
+            "right_leg": ("thigh_joint", "leg_joint", "foot_joint"),
+            "left_leg": ("thigh_left_joint", "leg_left_joint", "foot_left_joint"),
+        },
+        link_groups={"right_leg": ("thigh", "leg", "foot"), "left_leg": ("thigh_left", "leg_left", "foot_left")},
+    ),
 )
 
 HALFCHEETAH = TaskSpec(

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.language.channels import BodyPlan
+
 if TYPE_CHECKING:
     from smol_dsl.tasks.base import Task
 
@@ -42,6 +44,7 @@ class TaskSpec:
     default_metric: str
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     details: Mapping[str, Any] = field(default_factory=dict)  # for the factory, e.g. the feet's link names
+    body: BodyPlan | None = None  # the actuators and links a schedule's channels can name
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
