@@ -1,8 +1,10 @@
 """α-aware QD locomotion tasks on Brax v2: the shared rollout and the `Task` record.
 
 A task scores a batch of MLP policies in a Brax environment whose body its `modulate`
-hook changes: today, every actuator's gear multiplied by α. α is a traced argument of the
-scoring function, so a new α never recompiles: the environment's `sys` (Brax keeps
+hook changes: by default every actuator's gear multiplied by α; `Task.with_channels` gives
+the task under several scheduled parameters (gear, mass, friction, gravity; see body.py),
+scored with a (C,) array of factors in place of α. The parameters are traced arguments of
+the scoring function, so a new body never recompiles: the environment's `sys` (Brax keeps
 physics parameters there) is replaced inside the traced computation.
 
 Rollouts follow QDax's `scoring_function_brax_envs` exactly (same deterministic initial
@@ -15,9 +17,9 @@ from __future__ import annotations
 
 import copy
 import functools
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -30,13 +32,16 @@ import_brax()  # before Brax's modules, so that MJX's Warp lines are not printed
 from brax.base import System  # noqa: E402
 from brax.envs.base import PipelineEnv, State  # noqa: E402
 
+if TYPE_CHECKING:
+    from smol_dsl.language.channels import Channel
+
 ScoringFn = Callable[[Any, jax.Array, State], tuple[jax.Array, jax.Array]]
-"""(policy params batch, alpha, episode start) -> (fitnesses (B,), descriptors (B, D))."""
+"""(policy params batch, alpha or (C,) values, episode start) -> (fitnesses (B,), descriptors (B, D))."""
 
 Modulation = Callable[[System, jax.Array], System]
 """(sys, params) -> the sys a rollout runs in: the hook that changes the body (Brax keeps
-every physics parameter in `sys`, as its `randomization_fn` does). Today's one parameter
-is alpha, the scale of every actuator's gear."""
+every physics parameter in `sys`, as its `randomization_fn` does). The default's one
+parameter is alpha, the scale of every actuator's gear; `body.modulation`'s are a (C,) array."""
 
 EPISODE_START = 0x7A5C  # folded into a run's seed for its episode start
 
@@ -52,6 +57,23 @@ def with_sys(env: PipelineEnv, sys: System) -> PipelineEnv:
     changed = copy.copy(env)
     changed.sys = sys
     return changed
+
+
+def start_in_body(start: State, sys: System, standard: System) -> State:
+    """An episode start made in the `standard` body, moved into the body `sys`.
+
+    Brax's spring and positional pipelines compute each link's mass
+    (`mass ** (1 - spring_mass_scale)`) at reset, keep it in the pipeline state and never
+    recompute it; every other field of the start is recomputed by `step` (inverse inertia,
+    contacts) or depends on geometry only. Links whose mass `sys` leaves unchanged keep the
+    start's, bit for bit.
+    """
+    pipeline = start.pipeline_state
+    if not hasattr(pipeline, "mass"):  # the generalized and MJX pipelines read sys at each step
+        return start
+    masses, standard_masses = sys.link.inertia.mass, standard.link.inertia.mass
+    mass = jnp.where(masses == standard_masses, pipeline.mass, masses ** (1 - sys.spring_mass_scale))
+    return start.replace(pipeline_state=pipeline.replace(mass=mass))
 
 
 @dataclass(frozen=True, eq=False)  # compared and hashed by identity: it holds arrays
@@ -71,6 +93,7 @@ class Task:
     reward: Callable[[State], jax.Array]  # per-step fitness reward of a (post-step) state
     final_descriptor: Callable[[jax.Array, jax.Array], jax.Array]  # (per-step, valid mask)
     modulate: Modulation = scale_gear
+    channels: tuple[Channel, ...] | None = None  # what `modulate`'s values scale; None: alpha
 
     @property
     def name(self) -> str:
@@ -103,9 +126,38 @@ class Task:
         """The deterministic start of every episode of the run with this seed."""
         return deterministic_init_state(self.env, jax.random.fold_in(jax.random.key(seed), EPISODE_START))
 
+    def with_channels(self, channels: Sequence[Channel | str]) -> Task:
+        """This task with a body under `channels` (Channel or names like "gear[left_leg]"):
+        its `score` and `scoring_fn` take a (C,) array of factors, one per channel, in place
+        of alpha. The same channels give the same Task (and so one compilation)."""
+        from smol_dsl.language.channels import Channel
+
+        key = tuple(Channel.parse(c) if isinstance(c, str) else c for c in channels)
+        cached = self._channel_tasks.get(key)
+        if cached is None:
+            from smol_dsl.tasks.body import mass_is_inert, modulation
+
+            if self.spec.body is None:
+                raise ValueError(f"task {self.name} has no body plan: only alpha can change its body")
+            if any(c.kind == "mass" for c in key) and mass_is_inert(self.env.sys, self.env.backend):
+                raise ValueError(
+                    f"mass cannot change task {self.name}'s body: Brax's {self.env.backend} pipeline gives "
+                    "each of its links unit mass and inertia (its spring_mass_scale and spring_inertia_scale are 1)"
+                )
+            cached = replace(self, modulate=modulation(self.spec.body, key), channels=key)
+            self._channel_tasks[key] = cached
+        return cached
+
+    @functools.cached_property
+    def _channel_tasks(self) -> dict[tuple[Channel, ...], Task]:
+        return {}
+
     def rollout(self, params: Any, alpha: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
-        """Fitness and descriptor of one policy in the body `modulate` makes of alpha."""
-        env = with_sys(self.env, self.modulate(self.env.sys, alpha))
+        """Fitness and descriptor of one policy in the body `modulate` makes of alpha (or of
+        the channels' values)."""
+        sys = self.modulate(self.env.sys, alpha)
+        env = with_sys(self.env, sys)
+        start = start_in_body(start, sys, self.env.sys)
 
         def step(carry: tuple[State, jax.Array], _: None) -> tuple[tuple[State, jax.Array], tuple]:
             state, ended = carry

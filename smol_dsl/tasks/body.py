@@ -1,0 +1,127 @@
+"""Several scheduled physical parameters: a task's body under a tuple of channels.
+
+`modulation(plan, channels)` is a `Task.modulate` hook that takes a (C,) array of factors,
+one per channel, and multiplies the parameters of Brax's `System` that the `spring`
+pipeline reads:
+
+- gear: `sys.actuator.gear` (`actuator.to_tau` multiplies the actuator's force, bias
+  included, by it);
+- mass: `sys.link.inertia.mass` and `sys.link.inertia.i`, and MJX's `body_mass` and
+  `body_inertia` (body = link + 1) so that `sys` stays self-consistent. The spring
+  pipeline uses `mass ** (1 - spring_mass_scale)` and `diag(i) ** (1 - spring_inertia_scale)`
+  (`com.inv_inertia`), so a factor k acts as k on walker2d's masses (its scales are 0 and
+  1: inertia unused), as k^0.7 and k^0.2 on halfcheetah's (0.3, 0.8), and not at all on
+  hopper and ant (1, 1: every link weighs 1), for which `Task.with_channels` refuses mass.
+  The pipeline caches the masses in its state at reset: `Task.rollout` gives the episode
+  start the changed body's (`base.start_in_body`);
+- friction: `sys.geom_friction` of every geom (and `pair_friction` of explicit pairs). MJX's
+  collision (mujoco/mjx/_src/collision_driver.py) gives a contact the larger of its two
+  geoms' coefficients, or the priority geom's, so scaling every geom by k > 0 scales every
+  contact's by k exactly (rounding is monotonic); spring reads the sliding coefficient;
+- gravity: `sys.gravity`, which the spring pipeline reads, and MJX's `sys.opt.gravity`,
+  kept equal to it.
+
+Factors of channels of the same kind multiply: an actuator under `gear` and
+`gear[left_leg]` gets their product. Only multiplications (and selecting a factor per
+actuator or link), so `modulation(plan, (GEAR,))(sys, v)` is bit for bit
+`scale_gear(sys, v[0])`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from smol_dsl.language.channels import CHANNEL_KINDS, BodyPlan, Channel
+from smol_dsl.tasks.base import System
+
+
+def _factor(plan: BodyPlan, channels: Sequence[Channel], values: jax.Array, kind: str, size: int) -> jax.Array | None:
+    """The product of the kind's channels' factors: a scalar (every channel covers all), a
+    (size,) array (some cover only a part), or None (no channel of this kind)."""
+    factor: jax.Array | None = None
+    for c, channel in enumerate(channels):
+        if channel.kind != kind:
+            continue
+        indices = plan.indices(channel)
+        value = values[c]
+        if indices is not None:
+            chosen = np.zeros(size, dtype=bool)
+            chosen[list(indices)] = True
+            value = jnp.where(chosen, value, jnp.ones((), value.dtype))
+        factor = value if factor is None else factor * value
+    return factor
+
+
+def check_channels(plan: BodyPlan, channels: Sequence[Channel]) -> tuple[Channel, ...]:
+    """The channels as a tuple, or a ValueError for an unknown kind or target, or none."""
+    channels = tuple(channels)
+    if not channels:
+        raise ValueError("no channels: a body needs at least one scheduled parameter")
+    for channel in channels:
+        if channel.kind not in CHANNEL_KINDS:
+            raise ValueError(f"{channel.name}: unknown channel kind; the kinds are {', '.join(CHANNEL_KINDS)}")
+        unknown = plan.unknown_targets(channel)
+        if unknown:
+            part = CHANNEL_KINDS[channel.kind].part
+            where = plan.describe_part(part) if part else f"{channel.kind} applies to the whole body"
+            raise ValueError(f"{channel.name}: cannot select {', '.join(unknown)}; {where}")
+    return channels
+
+
+def modulation(plan: BodyPlan, channels: Sequence[Channel]) -> Callable[[System, jax.Array], System]:
+    """The `modulate` hook of a body under `channels`: (sys, values (C,)) -> the changed sys.
+
+    `plan` names the actuators and links of `sys` (in its order); values may be traced.
+    """
+    channels = check_channels(plan, channels)
+    actuators, links = len(plan.actuators), len(plan.links)
+
+    def modulate(sys: System, values: jax.Array) -> System:
+        if sys.actuator.gear.shape != (actuators,) or sys.link.inertia.mass.shape != (links,):
+            raise ValueError(
+                f"the body plan has {actuators} actuators and {links} links; this sys has "
+                f"{sys.actuator.gear.shape[0]} and {sys.link.inertia.mass.shape[0]}"
+            )
+        gear = _factor(plan, channels, values, "gear", actuators)
+        if gear is not None:
+            sys = sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * gear))
+        mass = _factor(plan, channels, values, "mass", links)
+        if mass is not None:
+            sys = _scale_mass(sys, jnp.broadcast_to(mass, (links,)))
+        friction = _factor(plan, channels, values, "friction", 1)
+        if friction is not None:
+            sys = sys.replace(geom_friction=sys.geom_friction * friction, pair_friction=sys.pair_friction * friction)
+        gravity = _factor(plan, channels, values, "gravity", 1)
+        if gravity is not None:
+            sys = sys.replace(gravity=sys.gravity * gravity, opt=sys.opt.replace(gravity=sys.opt.gravity * gravity))
+        return sys
+
+    return modulate
+
+
+def _scale_mass(sys: System, factor: jax.Array) -> System:
+    """Every link's mass and rotational inertia times its factor (L,), on both of sys's sides."""
+    inertia = sys.link.inertia
+    inertia = inertia.replace(mass=inertia.mass * factor, i=inertia.i * factor[:, None, None])
+    sys = sys.replace(link=sys.link.replace(inertia=inertia))
+    body = jnp.concatenate([jnp.ones((1,), factor.dtype), factor])  # body 0 is the world
+    changes = {}
+    if getattr(sys, "body_mass", None) is not None:
+        changes["body_mass"] = sys.body_mass * body
+    if getattr(sys, "body_inertia", None) is not None:
+        changes["body_inertia"] = sys.body_inertia * body[:, None]
+    return sys.replace(**changes)
+
+
+def mass_is_inert(sys: System, backend: str) -> bool:
+    """Whether the pipeline gives every link unit mass and inertia whatever sys says (Brax's
+    spring and positional pipelines with spring_mass_scale = spring_inertia_scale = 1)."""
+    return (
+        backend in ("spring", "positional")
+        and float(sys.spring_mass_scale) == 1.0
+        and float(sys.spring_inertia_scale) == 1.0
+    )
