@@ -155,7 +155,7 @@ def test_a_run_that_did_not_finish_is_refused(runs, tmp_path, capsys):
         ("config.json", "[1, 2]", "not the run's settings"),
         ("config.json", lambda c: {k: v for k, v in c.items() if k != "batch_size"}, "lacks the setting(s) batch_size"),
         ("config.json", lambda c: {**c, "evaluations": "many"}, 'evaluations is "many", not a whole number'),
-        ("config.json", lambda c: {**c, "task": "hopper"}, "unknown task 'hopper'"),
+        ("config.json", lambda c: {**c, "task": "unicycle"}, "unknown task 'unicycle'"),
         ("config.json", lambda c: {**c, "num_phases": 0}, "num_phases is 0"),
         ("config.json", lambda c: {**c, "colour": "blue"}, "unknown setting(s) colour"),
         ("config.json", lambda c: {**c, "num_phases": 10**15}, "1000000000000000 phases but only 12 generations"),

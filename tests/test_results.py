@@ -169,8 +169,8 @@ def test_runner_docs_hold_the_format_tables():
 def test_unknown_task_in_config_names_the_file(tmp_path, library):
     run = write_run(tmp_path / "run", library, "smol", 0, {"max_fitness": 1.0})
     config = json.loads((run / "config.json").read_text())
-    (run / "config.json").write_text(json.dumps({**config, "task": "hopper"}))
-    with pytest.raises(RunDirectoryError, match=r"config.json: unknown task 'hopper'"):
+    (run / "config.json").write_text(json.dumps({**config, "task": "unicycle"}))
+    with pytest.raises(RunDirectoryError, match=r"config.json: unknown task 'unicycle'"):
         read_run(run)
 
 

@@ -294,7 +294,7 @@ def test_kill_9_then_resume_equals_uninterrupted_run(tmp_path):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["run", "hopper", "human"], "unknown task 'hopper'"),
+        (["run", "unicycle", "human"], "unknown task 'unicycle'"),
         (["run", "walker2d", "nope.sched"], "no such file"),
         (["run", "walker2d", "human", "--phases", "5"], "--phases 10 or more"),
         (["run", "walker2d", "human", "--evals", "100"], "generations"),

@@ -10,18 +10,8 @@ import pytest
 from smol_dsl.tasks import TaskSpec, make_task, register, task_names, task_spec
 from smol_dsl.tasks.base import deterministic_init_state, scale_gear
 
-EPISODE = 50
+EPISODE = 50  # the episodes of conftest's walker and cheetah
 BATCH = 8
-
-
-@pytest.fixture(scope="session")
-def walker():
-    return make_task("walker2d", episode_length=EPISODE)
-
-
-@pytest.fixture(scope="session")
-def cheetah():
-    return make_task("halfcheetah", episode_length=EPISODE)
 
 
 def qdax_start(task):
@@ -29,15 +19,21 @@ def qdax_start(task):
     return deterministic_init_state(task.env, jax.random.key(3))
 
 
-def _qdax_scores(qdax_name, task, params, gear_scale=None):
+def _qdax_scores(qdax_name, task, params, gear_scale=None, feet=None):
     import qdax.tasks.brax.v2 as qdax_envs
     from qdax.tasks.brax.descriptor_extractors import get_feet_contact_proportion
     from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
+    from qdax.tasks.brax.v2.wrappers.locomotion_wrappers import FeetContactWrapper
 
     env = qdax_envs.create(qdax_name, episode_length=EPISODE)
     if gear_scale is not None:  # the plain Brax env with its actuators' gear multiplied
         base = env.unwrapped
         base.sys = base.sys.replace(actuator=base.sys.actuator.replace(gear=base.sys.actuator.gear * gear_scale))
+    if feet is not None:  # QDax's feet-contact wrapper, told which links are the feet
+        wrapper = env
+        while not isinstance(wrapper, FeetContactWrapper):
+            wrapper = wrapper.env
+        wrapper._feet_idx = jnp.asarray(feet)
     key = jax.random.key(3)
     score = create_brax_scoring_fn(env, task.policy, get_feet_contact_proportion, key, episode_length=EPISODE)
     fitnesses, descriptors, _ = score(params, key)
@@ -53,6 +49,31 @@ def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
     assert descriptors.shape == (BATCH, 2)
+
+
+def test_hopper_at_alpha_one_equals_qdax_hopper_uni():
+    task = make_task("hopper", episode_length=EPISODE)
+    params = task.init_policies(jax.random.key(1), BATCH)
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.0), qdax_start(task))
+    expected_fitnesses, expected_descriptors = _qdax_scores("hopper_uni", task, params)
+    np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
+    assert descriptors.shape == (BATCH, 1) and len(set(np.asarray(descriptors)[:, 0])) > 1
+
+
+def test_ant_uni_at_alpha_one_equals_qdax_ant_uni_with_the_lower_legs_as_feet():
+    """QDax 0.5's ant_uni looks for Brax v1's feet ("$ Body 4", ...), which Brax v2's ant lacks
+    (its lower legs are unnamed links), so its descriptors are empty: the test gives QDax's
+    feet-contact wrapper the four lower legs. Fitness is Brax's ant reward, as QDax's."""
+    task = make_task("ant_uni", episode_length=EPISODE, hidden_layer_sizes=(64, 64))
+    lower_legs = [i for i, name in enumerate(task.spec.body.links) if name.startswith("lower_leg_")]
+    assert lower_legs == [2, 4, 6, 8] and [task.env.sys.link_names[i] for i in lower_legs] == [""] * 4
+    params = task.init_policies(jax.random.key(1), BATCH)
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.0), qdax_start(task))
+    expected_fitnesses, expected_descriptors = _qdax_scores("ant_uni", task, params, feet=lower_legs)
+    np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
+    assert descriptors.shape == (BATCH, 4) and np.ptp(np.asarray(descriptors)) > 0
 
 
 @pytest.mark.parametrize("alpha", [0.5, 1.5])
@@ -91,10 +112,10 @@ def test_policies_are_tanh_mlps_with_the_papers_sizes(walker):
 
 
 def test_unknown_task():
-    with pytest.raises(ValueError, match="walker2d, halfcheetah, ant_omni"):
-        make_task("hopper")
-    with pytest.raises(ValueError, match="unknown task 'hopper'"):
-        task_spec("hopper")
+    with pytest.raises(ValueError, match="walker2d, halfcheetah, ant_omni, hopper, ant_uni"):
+        make_task("unicycle")
+    with pytest.raises(ValueError, match="unknown task 'unicycle'"):
+        task_spec("unicycle")
 
 
 def test_every_spec_is_complete_and_matches_its_task():

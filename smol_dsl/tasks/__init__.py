@@ -11,7 +11,7 @@ import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from smol_dsl.tasks.catalog import ANT_OMNI, HALFCHEETAH, WALKER2D
+from smol_dsl.tasks.catalog import ANT_OMNI, ANT_UNI, HALFCHEETAH, HOPPER, WALKER2D
 from smol_dsl.tasks.registry import PRESET_NAMES, TaskSpec, make_task, register, task_names, task_spec
 
 if TYPE_CHECKING:
@@ -20,6 +20,8 @@ if TYPE_CHECKING:
 register(WALKER2D)
 register(HALFCHEETAH)
 register(ANT_OMNI)
+register(HOPPER)
+register(ANT_UNI)
 
 TASK_NAMES = task_names()  # the bundled tasks; `task_names()` includes any registered since
 

@@ -1,9 +1,12 @@
 """Forward-locomotion tasks described by the duty factor of each foot (QDax's "uni" tasks).
 
-Fitness is the sum of the Brax env's own reward until the body falls (walker2d: forward
-velocity, healthy bonus, control cost; halfcheetah: forward velocity minus control cost);
-the descriptor is the proportion of steps each foot (the spec's `details["feet"]`) touches
-the ground, from the pipeline's contacts (its debug output).
+Fitness is the sum of the Brax env's own reward until the body falls (walker2d and hopper:
+forward velocity, healthy bonus, control cost; halfcheetah: forward velocity minus control
+cost; ant: forward velocity, healthy bonus, control and contact costs); the descriptor is
+the proportion of steps each foot (the links the spec's `details["feet"]` names, in link
+order, one descriptor each) touches the ground, from the pipeline's contacts (its debug
+output). Feet are named as in the spec's body plan, which names the links Brax leaves
+unnamed (the ant's lower legs).
 """
 
 from __future__ import annotations
@@ -28,10 +31,14 @@ def make(
     hidden_layer_sizes: tuple[int, ...] = (64, 64),
     backend: str = "spring",
 ) -> Task:
-    """The task of `spec` (walker2d, halfcheetah): its Brax env with contacts recorded."""
+    """The task of `spec` (walker2d, halfcheetah, hopper, ant_uni): its Brax env with
+    contacts recorded."""
     env = brax_environment(spec.environment, backend=backend, debug=True)
     feet = spec.details["feet"]
-    feet_idx = jnp.asarray([i for i, name in enumerate(env.sys.link_names) if name in feet])
+    links = spec.body.links if spec.body is not None else env.sys.link_names
+    feet_idx = jnp.asarray([i for i, name in enumerate(links) if name in feet])
+    if len(feet_idx) != len(feet) or len(feet) != spec.descriptor_size:
+        raise ValueError(f"task {spec.name}: feet {feet} are not {spec.descriptor_size} of its links {links}")
 
     def feet_contact(state: State) -> jax.Array:
         contact = state.pipeline_state.contact
