@@ -212,7 +212,7 @@ def test_reserved_words_are_the_grammar_keywords():
 
     assert reserved_words() == set(
         "name description let bounds extinction continuous constant linear bell random expr tail "
-        "at width every increasing decreasing".split()
+        "at width every increasing decreasing channel final".split()
     )
 
 

@@ -12,12 +12,15 @@ PHASES = 100
 TAIL_PHASE = 90  # the last 10% of training, phases 90..99, runs at alpha = 1
 
 
-def test_library_has_every_condition_of_the_paper(library):
+def test_library_has_every_condition_of_the_paper_and_the_channel_curricula(library):
     assert sorted(library) == [
         "extinction-05",
         "extinction-10",
         "extinction-50",
+        "growth",
         "human",
+        "leg-damage",
+        "low-gravity",
         "random",
         "smol",
         "smol-reverse",

@@ -11,16 +11,19 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
 from smol_dsl.language import tree
+from smol_dsl.language.channels import GEAR
 from smol_dsl.language.grammar import reserved_words
 from smol_dsl.language.symbolic import (
     MAX_RANDOM_DRAWS,
     MIN_SEGMENT,
+    ChannelPlace,
+    SymbolicCurve,
     SymbolicProgram,
     SymbolicSegment,
     T,
@@ -30,7 +33,8 @@ from smol_dsl.language.symbolic import (
 
 MAX_EXPONENT = 10_000
 MAX_SEGMENTS = 1_000
-"""Segments of a schedule; evaluation stays memory-linear, verification takes about 1 ms each."""
+"""Segments of a file, all channels together; evaluation stays memory-linear, verification
+takes about 1 ms each."""
 
 FUNCTIONS: dict[str, tuple[Callable[..., sp.Expr], int | None]] = {
     "exp": (sp.exp, 1),
@@ -221,11 +225,15 @@ class SegmentContext:
     span: Span
     """The whole segment's text."""
     builder: _Builder
+    owner: str = ""
+    """` of mass` when messages name the segment's channel."""
+    final: sp.Expr = sp.S.One
+    """The channel's final value (what `tail` means)."""
 
     @property
     def label(self) -> str:
-        """`segment 3`: how messages name the segment."""
-        return f"segment {self.index + 1}"
+        """`segment 3` (`segment 3 of mass`): how messages name the segment."""
+        return f"segment {self.index + 1}{self.owner}"
 
     @property
     def u(self) -> sp.Expr:
@@ -245,8 +253,8 @@ class SegmentContext:
         return self.builder.build(node, {"t": T, "u": self.u})
 
 
-def _segment(builder: _Builder, index: int, node: tree.Segment) -> SymbolicSegment:
-    label = f"segment {index + 1}"
+def _segment(builder: _Builder, index: int, node: tree.Segment, owner: str, final: sp.Expr) -> SymbolicSegment:
+    label = f"segment {index + 1}{owner}"
     start = _position(builder, node.start, f"the start of {label}")
     end = _position(builder, node.end, f"the end of {label}")
     if end <= start:
@@ -263,7 +271,8 @@ def _segment(builder: _Builder, index: int, node: tree.Segment) -> SymbolicSegme
             "of the run; make the segment at least 1e-5% long, or remove it",
         )
     unit = node.shape.unit
-    compiled = unit.compile(SegmentContext(index, start, end, node.span, builder), *node.shape.args)
+    context = SegmentContext(index, start, end, node.span, builder, owner, final)
+    compiled = unit.compile(context, *node.shape.args)
     return SymbolicSegment(
         index=index,
         shape=unit,
@@ -274,6 +283,75 @@ def _segment(builder: _Builder, index: int, node: tree.Segment) -> SymbolicSegme
         span=node.span,
         params=compiled.params,
         draws=compiled.draws,
+        owner=owner,
+    )
+
+
+def _final(builder: _Builder, section: tree.Section) -> sp.Expr:
+    """The channel's declared final value (1 if none), a positive constant."""
+    if section.final is None:
+        return sp.Integer(1)
+    name = section.channel.name
+    value = builder.constant(section.final.value, what=f"the final value of {name}")
+    if not value > 0:
+        raise ScheduleError(
+            f"the final value of {name} must be above 0, not {number_text(value)}",
+            span=section.final.span,
+            hint=f"`final` is {name}'s factor on the standard body at the end of the run, e.g. `final 0.5`",
+        )
+    return value
+
+
+def _bounds(builder: _Builder, section: tree.Section) -> tuple[sp.Expr, sp.Expr, Span] | None:
+    if section.bounds is None:
+        return None
+    low = builder.constant(section.bounds.low, what="the lower bound")
+    high = builder.constant(section.bounds.high, what="the upper bound")
+    if high < low:
+        raise ScheduleError(
+            f"bounds are reversed: {number_text(low)} .. {number_text(high)}",
+            span=section.bounds.span,
+            hint=f"write `bounds {number_text(high)} .. {number_text(low)}`",
+        )
+    return (low, high, section.bounds.span)
+
+
+def _curve(builder: _Builder, section: tree.Section, named: bool, segments_before: int) -> SymbolicCurve:
+    """One channel's section, compiled; `segments_before` counts the file's earlier segments."""
+    owner = f" of {section.channel.name}" if named else ""
+    if not section.segments:
+        if section.line is None:
+            raise ScheduleError(
+                "the schedule has no segments",
+                span=Span(1, 1),
+                hint="add segments covering 0%..100%, e.g. `0% .. 90%: linear 1.5 -> 1` and `90% .. 100%: tail`",
+            )
+        raise ScheduleError(
+            f"channel {section.channel.name} has no segments",
+            span=section.line.span,
+            hint="add segments covering 0%..100% below this line, e.g. `0% .. 90%: linear 0.5 -> 1` "
+            "and `90% .. 100%: tail`, or delete the line",
+        )
+    if segments_before + len(section.segments) > MAX_SEGMENTS:
+        total = segments_before + len(section.segments)
+        raise ScheduleError(
+            f"the schedule has {total} segments, more than {MAX_SEGMENTS}",
+            span=section.segments[MAX_SEGMENTS - segments_before].span,
+            hint=f"a schedule has at most {MAX_SEGMENTS} segments (all channels together); for many values use "
+            "`random LOW .. HIGH every STEP`, or an `expr` segment",
+        )
+    final = _final(builder, section)
+    segments = tuple(_segment(builder, i, s, owner, final) for i, s in enumerate(section.segments))
+    place = None
+    if section.line is not None:
+        place = ChannelPlace(section.line.span, section.line.target_spans)
+    return SymbolicCurve(
+        channel=section.channel,
+        segments=segments,
+        continuous=section.continuous,
+        final=final,
+        named=named,
+        place=place,
     )
 
 
@@ -282,40 +360,23 @@ def compile_program(program: tree.Program) -> SymbolicProgram:
     builder = _Builder()
     for let in program.lets:
         builder.define(let)
-    if not program.segments:
-        raise ScheduleError(
-            "the schedule has no segments",
-            span=Span(1, 1),
-            hint="add segments covering 0%..100%, e.g. `0% .. 90%: linear 1.5 -> 1` and `90% .. 100%: tail`",
-        )
-    if len(program.segments) > MAX_SEGMENTS:
-        raise ScheduleError(
-            f"the schedule has {len(program.segments)} segments, more than {MAX_SEGMENTS}",
-            span=program.segments[MAX_SEGMENTS].span,
-            hint=f"a schedule has at most {MAX_SEGMENTS} segments; for many values use "
-            "`random LOW .. HIGH every STEP`, or an `expr` segment",
-        )
-    segments = tuple(_segment(builder, i, s) for i, s in enumerate(program.segments))
+    named = len(program.sections) > 1 or program.sections[0].channel != GEAR
+    curves = []
+    segments_before = 0
+    for section in program.sections:
+        curves.append(_curve(builder, section, named, segments_before))
+        segments_before += len(section.segments)
     draws = 0
-    for segment in segments:
-        draws += segment.draws.count if segment.draws is not None else 0
-        if draws > MAX_RANDOM_DRAWS:
-            raise ScheduleError(
-                f"the random segments need {draws} draws or more, more than {MAX_RANDOM_DRAWS} in all",
-                span=segment.span,
-                hint="use coarser resolutions (`every 1%`) or fewer random segments",
-            )
-    bounds = None
-    if program.bounds is not None:
-        low = builder.constant(program.bounds.low, what="the lower bound")
-        high = builder.constant(program.bounds.high, what="the upper bound")
-        if high < low:
-            raise ScheduleError(
-                f"bounds are reversed: {number_text(low)} .. {number_text(high)}",
-                span=program.bounds.span,
-                hint=f"write `bounds {number_text(high)} .. {number_text(low)}`",
-            )
-        bounds = (low, high, program.bounds.span)
+    for curve in curves:
+        for segment in curve.segments:
+            draws += segment.draws.count if segment.draws is not None else 0
+            if draws > MAX_RANDOM_DRAWS:
+                raise ScheduleError(
+                    f"the random segments need {draws} draws or more, more than {MAX_RANDOM_DRAWS} in all",
+                    span=segment.span,
+                    hint="use coarser resolutions (`every 1%`) or fewer random segments",
+                )
+    curves = [replace(curve, bounds=_bounds(builder, section)) for curve, section in zip(curves, program.sections)]
     extinction: sp.Expr = sp.Integer(0)
     extinction_span = None
     if program.extinction is not None:
@@ -330,9 +391,7 @@ def compile_program(program: tree.Program) -> SymbolicProgram:
     return SymbolicProgram(
         name=program.name,
         description=program.description,
-        segments=segments,
-        bounds=bounds,
+        curves=tuple(curves),
         extinction=extinction,
         extinction_span=extinction_span,
-        continuous=program.continuous,
     )

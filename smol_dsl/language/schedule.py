@@ -1,65 +1,57 @@
-"""`Schedule`: a verified, compiled `.sched` file, and `parse` / `load` to get one."""
+"""`Schedule`: a verified, compiled `.sched` file of one or more channels, and `parse` /
+`load` to get one."""
 
 from __future__ import annotations
 
-import bisect
+import difflib
 import math
 import os
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from fractions import Fraction
+from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, BodyPlan, Channel
 from smol_dsl.language.compiler import compile_program
+from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
-from smol_dsl.language.shapes import Drawn, Formula, Line
-from smol_dsl.language.symbolic import SymbolicProgram, SymbolicSegment, percent
+from smol_dsl.language.symbolic import SymbolicCurve, SymbolicProgram, SymbolicSegment, percent
 from smol_dsl.language.syntax import parse_program
-from smol_dsl.language.verify import Certificate, tail_start, verify
+from smol_dsl.language.verify import Certificate, verify
 
 if TYPE_CHECKING:
     import jax
 
-RANDOM_BIN_TOLERANCE = 1e-4
-"""Float t within this many bins below a bin edge counts as on the edge (absorbs rounding)."""
+_CONSTANT_TEXT = "0% .. 100%: tail\n"
 
 
-def _fraction(value: sp.Rational) -> Fraction:
-    return Fraction(int(value.p), int(value.q))
+@lru_cache(maxsize=64)
+def constant_curve(channel: Channel = GEAR) -> Curve:
+    """The curve of a channel a file does not declare: 1 throughout (the standard body)."""
+    program = compile_program(parse_program(_CONSTANT_TEXT))
+    symbolic = program.curves[0]
+    certificate = verify(program)[GEAR]
+    if channel != GEAR:
+        from dataclasses import replace
 
-
-@dataclass(frozen=True)
-class _Tables:
-    """Per-segment numbers from which alpha is gathered, so that evaluating a schedule of any
-    number of segments holds O(len(t)) values, not one array per segment.
-
-    Each segment's shape says how (`Shape.evaluation`): a `Line` is `offset + scale * u` with
-    u = (t - start) / (end - start) in [0, 1] (constant, linear, tail, and every segment of the
-    alpha == 1 tail), a `Drawn` one `offset + scale * draw[first_draw + bin]` (random), and a
-    `Formula` (expr, bell) is evaluated one by one and selected with `where`.
-    """
-
-    starts: np.ndarray  # float64, segment starts
-    inverse_lengths: np.ndarray  # 1 / (end - start)
-    offsets: np.ndarray
-    scales: np.ndarray
-    is_random: np.ndarray  # bool: alpha is offset + scale * draw
-    first_draws: np.ndarray  # int32: where a segment's draws start in the flat draws
-    draw_counts: np.ndarray  # int32: its number of draws (1 elsewhere)
-    random_every: np.ndarray  # its draws' `every` (1 elsewhere)
-    formulas: tuple[tuple[int, Callable[..., Any]], ...]  # (index, JAX function) of Formula segments
+        symbolic = replace(symbolic, channel=channel)
+        certificate = replace(certificate, channel=channel)
+    return Curve(symbolic, certificate, _CONSTANT_TEXT, None)
 
 
 class Schedule:
-    """A verified schedule alpha(t) over training progress t in [0, 1].
+    """A verified schedule: for each of its channels, a factor over training progress t in [0, 1].
 
-    Get one with `smol_dsl.load("human")` or `smol_dsl.parse(text)`. Everything that
-    evaluates alpha is pure and jittable:
+    Get one with `smol_dsl.load("human")` or `smol_dsl.parse(text)`. A file without a
+    `channel` line schedules one channel, `gear` (alpha, the paper's actuator scaling).
+    `curve(channel)` is one channel's `Curve`; `alpha`, `phase_alpha(s)`, `as_optax`, `draws`,
+    `symbolic`, `segments` and `certificate` are plain gear's, which is 1 throughout in a file
+    that does not schedule it. Everything that evaluates is pure and jittable:
 
     >>> import jax, smol_dsl
     >>> smol = smol_dsl.load("smol")
@@ -67,47 +59,170 @@ class Schedule:
     (1.5, 1.0)
     >>> smol.phase_alphas(100, jax.random.key(0)).shape
     (100,)
+    >>> smol_dsl.load("growth").phase_values(100).shape  # one column per channel
+    (100, 2)
     """
 
-    def __init__(self, program: SymbolicProgram, certificate: Certificate, source: str, path: str | None):
+    def __init__(
+        self, program: SymbolicProgram, certificates: dict[Channel, Certificate], source: str, path: str | None
+    ):
         self._program = program
-        self.certificate: Certificate = certificate
         self.source: str = source
         self.path: str | None = path
         stem = Path(path).stem if path else None
         self.name: str = program.name or stem or "schedule"
         self.description: str = program.description or ""
         self.extinction: float = float(program.extinction)
-        self.segments: tuple[SymbolicSegment, ...] = program.segments
-        self.tail_start: Fraction = _fraction(tail_start(self.segments))
-        self._table_cache: _Tables | None = None
-        self._phase_table_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._phase_alphas_compiled: dict[int, Callable[..., Any]] = {}
+        self._curves: dict[Channel, Curve] = {
+            curve.channel: Curve(curve, certificates[curve.channel], source, path) for curve in program.curves
+        }
+        self._symbolic: dict[Channel, SymbolicCurve] = {curve.channel: curve for curve in program.curves}
+        self.tail_start: Fraction = max(curve.tail_start for curve in self._curves.values())
+        """Where every channel is at its final value for good: the latest of their tails' starts."""
 
-    # ------------------------------------------------------------------ symbolic
+    # ------------------------------------------------------------------ channels
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        """The scheduled channels, in the order the file declares them (`(GEAR,)` without any)."""
+        return tuple(self._curves)
+
+    def curve(self, channel: Channel | str = GEAR) -> Curve:
+        """One channel's curve, by `Channel` or name (`"mass"`, `"gear[left_leg]"`); a channel the
+        file does not declare is 1 throughout. ValueError for a name that is no channel."""
+        if isinstance(channel, str):
+            channel = Channel.parse(channel)
+        found = self._curves.get(channel)
+        return found if found is not None else constant_curve(channel)
+
+    @property
+    def certificates(self) -> dict[Channel, Certificate]:
+        """Each declared channel's certificate, in declared order."""
+        return {channel: curve.certificate for channel, curve in self._curves.items()}
+
+    @property
+    def final_body(self) -> dict[Channel, float]:
+        """Each declared channel's final value: the body the run ends on (1: the standard one)."""
+        return {channel: curve.final for channel, curve in self._curves.items()}
+
+    def final_differences(self, other: Schedule) -> list[str]:
+        """The names of the channels whose final values differ between the two schedules (a
+        channel a file does not declare ends at 1), in declared order: empty when both end on
+        the same body, so that their runs compare."""
+        mine, theirs = self.final_body, other.final_body
+        channels = list(dict.fromkeys([*mine, *theirs]))
+        return [c.name for c in channels if mine.get(c, 1.0) != theirs.get(c, 1.0)]
+
+    def check_body(self, plan: BodyPlan | None, task: str) -> None:
+        """Refuse, with a located ScheduleError, channels that name actuators or links the
+        task's body lacks, or any target when the task does not describe its body (`plan` None)."""
+        for channel in self.channels:
+            if not channel.targets:
+                continue
+            place = self._symbolic[channel].place
+            assert place is not None, "a channel with targets has a `channel` line"
+            part = CHANNEL_KINDS[channel.kind].part or "parts"
+            if plan is None:
+                raise ScheduleError(
+                    f"task {task} does not list its {part}, so `{channel.name}` cannot name them",
+                    span=_joined(place.target_spans),
+                    hint=f"write `channel {channel.kind}` to scale all of them, or use a task that lists its body",
+                    source=self.source,
+                    path=self.path,
+                )
+            unknown = plan.unknown_targets(channel)
+            if not unknown:
+                continue
+            target = unknown[0]
+            known = [*plan.names(part), *plan.groups(part)]
+            close = difflib.get_close_matches(target, known, n=1)
+            raise ScheduleError(
+                f"task {task} has no {part} named `{target}`",
+                span=place.target_spans[channel.targets.index(target)],
+                hint=(f"did you mean `{close[0]}`? " if close else "") + f"{task}'s {plan.describe_part(part)}",
+                source=self.source,
+                path=self.path,
+            )
+
+    # ------------------------------------------------------------------ all channels in JAX
+    def phase_value(
+        self,
+        k: jax.typing.ArrayLike,
+        num_phases: int,
+        key: jax.Array | None = None,
+        channels: Sequence[Channel] | None = None,
+    ) -> jax.Array:
+        """Each channel's value during phase `k` of `num_phases`, shape `k.shape + (C,)` for
+        `channels` (default `self.channels`; one the file does not declare is 1). `k` may be traced."""
+        import jax.numpy as jnp
+
+        columns = []
+        for channel in self.channels if channels is None else channels:
+            if channel in self._curves:
+                columns.append(self._curves[channel].phase_alpha(k, num_phases, key))
+            else:
+                columns.append(jnp.ones(jnp.shape(k), dtype=jnp.result_type(float)))
+        return jnp.stack(columns, axis=-1)
+
+    def phase_values(
+        self, num_phases: int, key: jax.Array | None = None, channels: Sequence[Channel] | None = None
+    ) -> jax.Array:
+        """Each channel's value for every phase, shape (num_phases, C) for `channels` (default
+        `self.channels`; one the file does not declare is 1.0 throughout). Column c is
+        `curve(channels[c]).phase_alphas(num_phases, key)`, bit for bit."""
+        import jax.numpy as jnp
+
+        check_phases(num_phases)
+        columns = []
+        for channel in self.channels if channels is None else channels:
+            if channel in self._curves:
+                columns.append(self._curves[channel].phase_alphas(num_phases, key))
+            else:
+                columns.append(jnp.ones((num_phases,), dtype=jnp.result_type(float)))
+        return jnp.stack(columns, axis=1)
+
+    def checked_phase_values(
+        self, num_phases: int, key: jax.Array | None = None, channels: Sequence[Channel] | None = None
+    ) -> np.ndarray:
+        """`phase_values` on the host, refused with a located ScheduleError if any value is not
+        finite and positive (as `checked_phase_alphas`)."""
+        chosen = self.channels if channels is None else tuple(channels)
+        values = np.asarray(self.phase_values(num_phases, key, chosen))
+        for column, channel in enumerate(chosen):
+            self.curve(channel).check_phase_values(values[:, column], num_phases)
+        return values
+
+    def tail_phases(self, num_phases: int) -> int:
+        """How many of `num_phases` equal phases lie wholly inside every channel's tail."""
+        check_phases(num_phases)
+        return num_phases - math.ceil(self.tail_start * num_phases)
+
+    # ------------------------------------------------------------------ plain gear: the paper's alpha
+    @property
+    def _gear(self) -> Curve:
+        return self.curve(GEAR)
+
+    @property
+    def certificate(self) -> Certificate:
+        """Plain gear's certificate (alpha's)."""
+        return self._gear.certificate
+
+    @property
+    def segments(self) -> tuple[SymbolicSegment, ...]:
+        """Plain gear's segments."""
+        return self._gear.segments
+
     @property
     def symbolic(self) -> sp.Piecewise:
         """alpha(t) as one exact sympy Piecewise in `smol_dsl.language.symbolic.T`."""
-        return self._program.piecewise
+        return self._gear.symbolic
 
-    def tail_phases(self, num_phases: int) -> int:
-        """How many of `num_phases` equal phases lie wholly inside the alpha == 1 tail."""
-        _check_phases(num_phases)
-        return num_phases - math.ceil(self.tail_start * num_phases)
-
-    # ------------------------------------------------------------------ JAX
     def alpha(self, t: jax.typing.ArrayLike, key: jax.Array | None = None) -> jax.Array:
         """alpha at progress `t` (scalar or array, clipped to [0, 1]); jit- and vmap-able.
 
         Random segments draw from `key` (a fixed default key when None): the same key
         always gives the same schedule.
         """
-        import jax.numpy as jnp
-
-        t = jnp.clip(jnp.asarray(t, dtype=jnp.result_type(float)), 0.0, 1.0)
-        tables = self._tables()
-        index = jnp.searchsorted(jnp.asarray(tables.starts[1:], dtype=t.dtype), t, side="right")
-        return self._select(t, index, self._bin_of(t, index), key)
+        return self._gear.alpha(t, key)
 
     def phase_alpha(self, k: jax.typing.ArrayLike, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """alpha during phase `k` of `num_phases`: the curve at the phase's start, t = k / N.
@@ -116,25 +231,11 @@ class Schedule:
         Which segment and which random draw a phase gets is decided in exact rational
         arithmetic, so phase 90 of 100 is exactly at the 90% boundary.
         """
-        import jax.numpy as jnp
-
-        segment_of, bin_of = self._phase_tables(num_phases)
-        k = jnp.clip(jnp.asarray(k, dtype=jnp.int32), 0, num_phases - 1)
-        t = k.astype(jnp.result_type(float)) / num_phases
-        return self._select(t, jnp.asarray(segment_of)[k], jnp.asarray(bin_of)[k], key)
+        return self._gear.phase_alpha(k, num_phases, key)
 
     def phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """alpha for every phase of `num_phases`, shape (num_phases,)."""
-        import jax
-
-        _check_phases(num_phases)
-        if num_phases not in self._phase_alphas_compiled:
-            import jax.numpy as jnp
-
-            self._phase_alphas_compiled[num_phases] = jax.jit(
-                lambda key: self.phase_alpha(jnp.arange(num_phases), num_phases, key)
-            )
-        return self._phase_alphas_compiled[num_phases](_default_key(key))
+        return self._gear.phase_alphas(num_phases, key)
 
     def checked_phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> np.ndarray:
         """`phase_alphas` on the host, refused with a ScheduleError if any is not finite and positive.
@@ -142,20 +243,7 @@ class Schedule:
         The certificate proves this never happens; runners call it before training anyway, so
         that a defect can never waste a run.
         """
-        alphas = np.asarray(self.phase_alphas(num_phases, key))
-        bad = np.flatnonzero(~(np.isfinite(alphas) & (alphas > 0)))
-        if bad.size:
-            k = int(bad[0])
-            segment = self.segments[int(self._phase_tables(num_phases)[0][k])]
-            raise ScheduleError(
-                f"alpha of phase {k} of {num_phases} (t = {percent(Fraction(k, num_phases))}, segment "
-                f"{segment.index + 1}) is {alphas[k]} in float32; {bad.size} phase(s) are not finite and positive",
-                span=segment.span,
-                hint="this is a bug in smol-dsl's verification; please report the schedule",
-                source=self.source,
-                path=self.path,
-            )
-        return alphas
+        return self._gear.checked_phase_alphas(num_phases, key)
 
     def as_optax(
         self, total_steps: int, *, num_phases: int | None = None, key: jax.Array | None = None
@@ -169,158 +257,28 @@ class Schedule:
         >>> float(schedule(950))
         1.0
         """
-        if total_steps <= 0:
-            raise ValueError(f"total_steps must be positive, not {total_steps}")
-        if num_phases is not None:
-            _check_phases(num_phases)
-            # phase k starts at step ceil(k * total / N), computed exactly here so that a
-            # traced int32 count never overflows in count * N
-            first_steps = np.asarray([-(-k * total_steps // num_phases) for k in range(1, num_phases)], dtype=np.int64)
-            if total_steps > 2**31 - 1:
-                raise ValueError(f"total_steps must be at most 2**31 - 1 for int32 step counts, not {total_steps}")
-
-        def schedule(count: jax.typing.ArrayLike) -> jax.Array:
-            import jax.numpy as jnp
-
-            if num_phases is None:
-                return self.alpha(jnp.asarray(count) / total_steps, key)
-            boundaries = jnp.asarray(first_steps, dtype=jnp.int32)
-            phase = jnp.searchsorted(boundaries, jnp.asarray(count, dtype=jnp.int32), side="right")
-            return self.phase_alpha(phase, num_phases, key)
-
-        return schedule
+        return self._gear.as_optax(total_steps, num_phases=num_phases, key=key)
 
     def draws(self, key: jax.Array | None = None) -> list[jax.Array | None]:
-        """The uniform [0, 1) draws of each random segment under `key` (None elsewhere)."""
-        import jax
-
-        key = _default_key(key)
-        # Segment j draws uniform(fold_in(key, j), (count,)). Segments with the same count are
-        # drawn together under vmap (the same numbers, one operation per distinct count), so
-        # that a schedule of many random segments compiles quickly.
-        by_count: dict[int, list[int]] = {}
-        for segment in self.segments:
-            if segment.draws is not None:
-                by_count.setdefault(segment.draws.count, []).append(segment.index)
-        draws: list[jax.Array | None] = [None] * len(self.segments)
-        for count, indices in by_count.items():
-            keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jax.numpy.asarray(indices))
-            drawn = jax.vmap(lambda k, count=count: jax.random.uniform(k, (count,)))(keys)
-            for row, j in enumerate(indices):
-                draws[j] = drawn[row]
-        return draws
-
-    # ------------------------------------------------------------------ internals
-    def _bin_of(self, t: jax.Array, index: jax.Array) -> jax.Array:
-        """The random bin of t within its segment (0 outside random segments)."""
-        import jax.numpy as jnp
-
-        tables = self._tables()
-        if not tables.is_random.any():
-            return jnp.zeros(t.shape, dtype=jnp.int32)
-        start = jnp.asarray(tables.starts, dtype=t.dtype)[index]
-        every = jnp.asarray(tables.random_every, dtype=t.dtype)[index]
-        bins = jnp.floor((t - start) / every + RANDOM_BIN_TOLERANCE).astype(jnp.int32)
-        return jnp.clip(bins, 0, jnp.asarray(tables.draw_counts)[index] - 1)
-
-    def _phase_tables(self, num_phases: int) -> tuple[np.ndarray, np.ndarray]:
-        """For each phase k: its segment and its random bin, in exact rational arithmetic."""
-        _check_phases(num_phases)
-        if num_phases not in self._phase_table_cache:
-            starts = [_fraction(s.start) for s in self.segments]
-            segment_of = np.zeros(num_phases, dtype=np.int32)
-            bin_of = np.zeros(num_phases, dtype=np.int32)
-            for k in range(num_phases):
-                t = Fraction(k, num_phases)
-                j = bisect.bisect_right(starts, t) - 1
-                segment_of[k] = j
-                draws = self.segments[j].draws
-                if draws is not None:
-                    bin_of[k] = min(math.floor((t - starts[j]) / _fraction(draws.every)), draws.count - 1)
-            self._phase_table_cache[num_phases] = (segment_of, bin_of)
-        return self._phase_table_cache[num_phases]
-
-    def _select(self, t: jax.Array, index: jax.Array, bins: jax.Array, key: Any) -> jax.Array:
-        """alpha at t, given t's segment `index` and random bin: gathered from the tables, then
-        each formula segment evaluated and put in place with `where` (O(len(t)) memory)."""
-        import jax.numpy as jnp
-
-        tables = self._tables()
-
-        def table(values: np.ndarray) -> jax.Array:
-            return jnp.asarray(values, dtype=t.dtype)[index]
-
-        start = table(tables.starts)
-        fraction = jnp.clip((t - start) * table(tables.inverse_lengths), 0.0, 1.0)
-        if tables.is_random.any():
-            draws = jnp.concatenate([d for d in self.draws(key) if d is not None]).astype(t.dtype)
-            drawn = draws[jnp.asarray(tables.first_draws)[index] + bins]
-            fraction = jnp.where(jnp.asarray(tables.is_random)[index], drawn, fraction)
-        alpha = table(tables.offsets) + table(tables.scales) * fraction
-        for j, function in tables.formulas:
-            segment = self.segments[j]
-            inside = jnp.clip(t, float(segment.start), float(segment.end))
-            alpha = jnp.where(index == j, function(inside).astype(t.dtype), alpha)
-        return alpha
-
-    def _tables(self) -> _Tables:
-        if self._table_cache is None:
-            count = len(self.segments)
-            offsets, scales = np.zeros(count), np.zeros(count)
-            first_draws, draw_counts = np.zeros(count, dtype=np.int32), np.ones(count, dtype=np.int32)
-            random_every, is_random = np.ones(count), np.zeros(count, dtype=bool)
-            formulas = []
-            drawn = 0
-            for j, segment in enumerate(self.segments):
-                # proven identically 1 from the tail's start (say sin(t)**2 + cos(t)**2): exactly 1.0 in floats too
-                at_one = _fraction(segment.start) >= self.tail_start
-                evaluation = Line(1.0) if at_one else segment.shape.evaluation(segment)
-                if isinstance(evaluation, Line):
-                    offsets[j], scales[j] = evaluation.offset, evaluation.scale
-                elif isinstance(evaluation, Drawn):
-                    assert segment.draws is not None, f"a Drawn segment without draws: {segment.kind}"
-                    offsets[j], scales[j] = evaluation.offset, evaluation.scale
-                    is_random[j] = True
-                    first_draws[j], draw_counts[j] = drawn, segment.draws.count
-                    random_every[j] = float(segment.draws.every)
-                else:
-                    assert isinstance(evaluation, Formula)
-                    formulas.append((j, evaluation.function))
-                if segment.draws is not None:
-                    drawn += segment.draws.count
-            starts = np.array([float(s.start) for s in self.segments])
-            ends = np.array([float(s.end) for s in self.segments])
-            self._table_cache = _Tables(
-                starts=starts,
-                inverse_lengths=1.0 / (ends - starts),
-                offsets=offsets,
-                scales=scales,
-                is_random=is_random,
-                first_draws=first_draws,
-                draw_counts=draw_counts,
-                random_every=random_every,
-                formulas=tuple(formulas),
-            )
-        return self._table_cache
+        """The uniform [0, 1) draws of each of plain gear's random segments under `key` (None elsewhere)."""
+        return self._gear.draws(key)
 
     def __repr__(self) -> str:
         c = self.certificate
+        segments = sum(len(curve.segments) for curve in self._curves.values())
         return (
-            f"Schedule({self.name!r}, segments={len(self.segments)}, "
+            f"Schedule({self.name!r}, channels={', '.join(c.name for c in self.channels)}, segments={segments}, "
             f"alpha in [{c.minimum:.4g}, {c.maximum:.4g}], tail from {percent(self.tail_start)}, "
             f"extinction={self.extinction:g})"
         )
 
 
-def _default_key(key: jax.Array | None) -> jax.Array:
-    import jax
-
-    return jax.random.key(0) if key is None else key
-
-
-def _check_phases(num_phases: int) -> None:
-    if not isinstance(num_phases, (int, np.integer)) or isinstance(num_phases, bool) or num_phases < 1:
-        raise ValueError(f"num_phases must be a positive int, not {num_phases!r}")
+def _joined(spans: Sequence[Span]) -> Span:
+    """One span from the first to the last of spans on one line."""
+    first, last = spans[0], spans[-1]
+    if first.line != last.line:
+        return first
+    return Span(first.line, first.column, last.column + last.length - first.column)
 
 
 def parse(text: str, *, path: str | os.PathLike[str] | None = None) -> Schedule:
@@ -329,7 +287,7 @@ def parse(text: str, *, path: str | os.PathLike[str] | None = None) -> Schedule:
     try:
         program = parse_program(text)
         symbolic = compile_program(program)
-        certificate = verify(symbolic)
+        certificates = verify(symbolic)
     except ScheduleError as error:
         raise error.located(text, shown) from None
     except RecursionError:
@@ -340,7 +298,7 @@ def parse(text: str, *, path: str | os.PathLike[str] | None = None) -> Schedule:
             source=text,
             path=shown,
         ) from None
-    return Schedule(symbolic, certificate, text, shown)
+    return Schedule(symbolic, certificates, text, shown)
 
 
 def read_text(path: Path) -> str:

@@ -1,4 +1,5 @@
-"""The exact form of a schedule: the variable t, the pieces of alpha(t), segments and programs.
+"""The exact form of a schedule: the variable t, the pieces of alpha(t), segments, each
+channel's curve, and programs.
 
 Everything here is exact sympy. `smol_dsl.language.compiler` builds it from the syntax tree
 (each segment's pieces come from its shape's unit in `smol_dsl.language.shapes`),
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import sympy as sp
 
 from smol_dsl.errors import Span
+from smol_dsl.language.channels import GEAR, Channel
 
 if TYPE_CHECKING:
     from smol_dsl.language.shapes import Shape
@@ -67,6 +69,8 @@ class SymbolicSegment:
     """What the shape's unit keeps for proving and evaluating it (e.g. a bell's peak)."""
     draws: Draws | None = None
     """The random draws alpha depends on, if any."""
+    owner: str = ""
+    """How messages name its channel after `segment N`: `` (a file of the gear channel alone) or ` of mass`."""
 
     @property
     def kind(self) -> str:
@@ -85,25 +89,61 @@ class SymbolicSegment:
 
     def describe(self) -> str:
         """How messages name the segment: `segment 2 (0% .. 90%, linear)`."""
-        return f"segment {self.index + 1} ({self.describe_range()}, {self.kind})"
+        return f"segment {self.index + 1}{self.owner} ({self.describe_range()}, {self.kind})"
+
+
+@dataclass(frozen=True)
+class ChannelPlace:
+    """Where a channel is declared: its `channel` line and each target's text (for errors)."""
+
+    span: Span
+    target_spans: tuple[Span, ...] = ()
+
+
+@dataclass(frozen=True)
+class SymbolicCurve:
+    """One channel's schedule, exact: its segments, declared bounds, `continuous` and final value."""
+
+    channel: Channel
+    segments: tuple[SymbolicSegment, ...]
+    bounds: tuple[sp.Expr, sp.Expr, Span] | None = None
+    continuous: bool = False
+    final: sp.Expr = sp.S.One
+    named: bool = False
+    """Whether messages name the channel (a file of several channels, or not plain gear)."""
+    place: ChannelPlace | None = None
+    """Its `channel` line; None for the implicit gear channel of a file without one."""
+
+    @property
+    def quantity(self) -> str:
+        """How messages call its value: `alpha` for plain gear, else the channel's name."""
+        return self.channel.quantity
+
+    @property
+    def piecewise(self) -> sp.Piecewise:
+        """Its value on [0, 1] as one sympy Piecewise (random draws appear as functions)."""
+        parts = [(s.expr, T < s.end) for s in self.segments[:-1]]
+        parts.append((self.segments[-1].expr, True))
+        return sp.Piecewise(*parts)
 
 
 @dataclass(frozen=True)
 class SymbolicProgram:
+    """A compiled file: its file-level directives and each declared channel's curve, in order."""
+
     name: str | None
     description: str | None
-    segments: tuple[SymbolicSegment, ...]
-    bounds: tuple[sp.Expr, sp.Expr, Span] | None
+    curves: tuple[SymbolicCurve, ...]
     extinction: sp.Expr
     extinction_span: Span | None
-    continuous: bool
 
     @property
-    def piecewise(self) -> sp.Piecewise:
-        """alpha(t) on [0, 1] as one sympy Piecewise (random draws appear as functions)."""
-        parts = [(s.expr, T < s.end) for s in self.segments[:-1]]
-        parts.append((self.segments[-1].expr, True))
-        return sp.Piecewise(*parts)
+    def channels(self) -> tuple[Channel, ...]:
+        return tuple(curve.channel for curve in self.curves)
+
+    def curve(self, channel: Channel = GEAR) -> SymbolicCurve | None:
+        """The curve of a declared channel, or None."""
+        return next((curve for curve in self.curves if curve.channel == channel), None)
 
 
 def percent(value: sp.Expr | Fraction | float) -> str:

@@ -21,6 +21,7 @@ from lark.exceptions import (
 
 from smol_dsl.errors import ScheduleError, Span
 from smol_dsl.language import shapes, tree
+from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel
 from smol_dsl.language.grammar import grammar_text, parser
 
 MAX_SOURCE_CHARS = 1_000_000
@@ -189,16 +190,104 @@ class _ToTree(Transformer):
     def continuous_decl(self, meta: Any, children: list[Any]) -> tuple[str, Any, Span]:
         return ("continuous", True, _span_of_meta(meta))
 
+    def final_decl(self, meta: Any, children: list[Any]) -> tree.Final:
+        return tree.Final(children[0], _span_of_meta(meta))
+
+    def channel_targets(self, meta: Any, children: list[Any]) -> tuple[Span, list[Token]]:
+        return _span_of_meta(meta), [child for child in children if child is not None]
+
+    def channel_decl(self, meta: Any, children: list[Any]) -> tree.ChannelLine:
+        kind, targets = children
+        return _channel_line(kind, targets, _span_of_meta(meta))
+
     def start(self, meta: Any, children: list[Any]) -> tree.Program:
         return _assemble(children)
 
 
+def _channel_line(kind: Token, targets: tuple[Span, list[Token]] | None, span: Span) -> tree.ChannelLine:
+    """A `channel` line, checked: a known kind, and targets only where the kind takes them,
+    none empty or repeated."""
+    kind_span = _span_of_token(kind)
+    if str(kind) not in CHANNEL_KINDS:
+        close = difflib.get_close_matches(str(kind), list(CHANNEL_KINDS), n=1)
+        raise ScheduleError(
+            f"unknown channel `{kind}`",
+            span=kind_span,
+            hint=(f"did you mean `{close[0]}`? " if close else "") + "the channels are " + channel_kinds_text(),
+        )
+    if targets is None:
+        return tree.ChannelLine(Channel(str(kind)), span, kind_span)
+    targets_span, names = targets
+    part = CHANNEL_KINDS[str(kind)].part
+    if part is None:
+        raise ScheduleError(
+            f"`{kind}` takes no targets: it scales {CHANNEL_KINDS[str(kind)].scales}",
+            span=targets_span,
+            hint=f"write `channel {kind}`; only gear (actuators) and mass (links) are scaled part by part",
+        )
+    if not names:
+        raise ScheduleError(
+            f"`{kind}[]` names no {part}",
+            span=targets_span,
+            hint=f"name {part} or groups of the task, e.g. `{kind}[left_leg]`, "
+            f"or write `channel {kind}` for all of them",
+        )
+    seen: set[str] = set()
+    for name in names:
+        if str(name) in seen:
+            raise ScheduleError(
+                f"`{name}` is named twice in `{kind}[...]`",
+                span=_span_of_token(name),
+                hint="name each target once",
+            )
+        seen.add(str(name))
+    channel = Channel(str(kind), tuple(str(name) for name in names))
+    return tree.ChannelLine(channel, span, kind_span, tuple(_span_of_token(n) for n in names), targets_span)
+
+
+def channel_kinds_text() -> str:
+    """`gear (the actuators' gear (their strength)), mass (...), ...`: the kinds, for hints."""
+    return ", ".join(f"{keyword} ({kind.scales})" for keyword, kind in CHANNEL_KINDS.items())
+
+
+def _same_channel(a: Channel, b: Channel) -> bool:
+    """Whether two channel lines declare the same channel (targets in any order)."""
+    return a.kind == b.kind and set(a.targets) == set(b.targets)
+
+
+class _SectionBuilder:
+    """One channel's statements as they are read: its directives given once, its segments."""
+
+    def __init__(self, line: tree.ChannelLine | None, first: Span) -> None:
+        self.line = line
+        self.channel = line.channel if line is not None else GEAR
+        self.first = first  # its first line: the `channel` line, or the implicit section's first statement
+        self.fields: dict[str, Any] = {}
+        self.seen: dict[str, Span] = {}
+        self.segments: list[tree.Segment] = []
+
+    def once(self, key: str, span: Span, value: Any) -> None:
+        if key in self.seen:
+            owner = "a schedule" if self.line is None else f"channel {self.channel.name}"
+            raise ScheduleError(
+                f"`{key}` is given twice (first on line {self.seen[key].line})",
+                span=span,
+                hint=f"{owner} has at most one `{key}` line; delete one of them",
+            )
+        self.seen[key] = span
+        self.fields[key] = value
+
+    def section(self) -> tree.Section:
+        return tree.Section(self.channel, self.line, segments=tuple(self.segments), **self.fields)
+
+
 def _assemble(statements: list[Any]) -> tree.Program:
-    """Collect statements into a Program, rejecting repeated directives."""
+    """Collect statements into a Program: file-level directives (given once), lets, and each
+    channel's section; lines before the first `channel` line are the gear channel's."""
     fields: dict[str, Any] = {}
     seen: dict[str, Span] = {}
     lets: list[tree.Let] = []
-    segments: list[tree.Segment] = []
+    sections: list[_SectionBuilder] = []
 
     def once(key: str, span: Span, value: Any) -> None:
         if key in seen:
@@ -210,21 +299,62 @@ def _assemble(statements: list[Any]) -> tree.Program:
         seen[key] = span
         fields[key] = value
 
+    def current(span: Span) -> _SectionBuilder:
+        if not sections:
+            sections.append(_SectionBuilder(None, span))
+        return sections[-1]
+
     for statement in statements:
         if statement is None:
             continue
-        if isinstance(statement, tree.Segment):
-            segments.append(statement)
+        if isinstance(statement, tree.ChannelLine):
+            _check_new_channel(statement, sections)
+            sections.append(_SectionBuilder(statement, statement.span))
+        elif isinstance(statement, tree.Segment):
+            current(statement.span).segments.append(statement)
         elif isinstance(statement, tree.Let):
             lets.append(statement)
         elif isinstance(statement, tree.Bounds):
-            once("bounds", statement.span, statement)
+            current(statement.span).once("bounds", statement.span, statement)
+        elif isinstance(statement, tree.Final):
+            current(statement.span).once("final", statement.span, statement)
         elif isinstance(statement, tree.Extinction):
             once("extinction", statement.span, statement)
         else:
             key, value, span = statement
-            once(key, span, value)
-    return tree.Program(lets=tuple(lets), segments=tuple(segments), **fields)
+            if key == "continuous":
+                current(span).once(key, span, value)
+            else:
+                once(key, span, value)
+    if sections and sections[0].line is None and not sections[0].segments and len(sections) > 1:
+        implicit = sections[0]
+        key, span = min(implicit.seen.items(), key=lambda item: (item[1].line, item[1].column))
+        raise ScheduleError(
+            f"`{key}` comes before the first `channel` line, so it is the gear channel's, which has no segments",
+            span=span,
+            hint="move it below the `channel` line of the channel it is for",
+        )
+    built = [section.section() for section in sections] or [tree.Section(GEAR)]
+    return tree.Program(lets=tuple(lets), sections=tuple(built), **fields)
+
+
+def _check_new_channel(line: tree.ChannelLine, sections: list[_SectionBuilder]) -> None:
+    """Refuse a channel declared a second time (the implicit gear channel included)."""
+    for section in sections:
+        if not _same_channel(section.channel, line.channel):
+            continue
+        if section.line is None:
+            raise ScheduleError(
+                f"`channel {line.channel.name}` is given twice: the lines before the first `channel` line "
+                f"(from line {section.first.line}) are the gear channel's",
+                span=line.span,
+                hint="move those lines below this `channel gear` line, or delete one of the two",
+            )
+        raise ScheduleError(
+            f"`channel {line.channel.name}` is given twice (first on line {section.first.line})",
+            span=line.span,
+            hint="a file declares each channel once: merge the two sections",
+        )
 
 
 def _expected_in_words(expected: set[str]) -> str:
@@ -323,6 +453,9 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
                 close = difflib.get_close_matches(str(token), kinds, n=1)
                 if close and (error.expected & {kind.upper() for kind in kinds}):
                     example = f"did you mean `{close[0]}`? The segment kinds are " + ", ".join(kinds)
+        if str(token) in ("[", "]") and "LSQB" not in error.expected:
+            message = f"unexpected character {str(token)!r}"
+            example = "group with round brackets `( )`"
         if example is None and "_NL" in error.expected and token.type != "$END":
             example = "one statement per line: end the line before this, or join it to the expression with an operator"
         hint = example or f"expected {_expected_in_words(set(error.expected))}"

@@ -11,6 +11,7 @@ from fractions import Fraction
 from typing import TYPE_CHECKING, Literal
 
 from smol_dsl.errors import Span
+from smol_dsl.language.channels import Channel
 
 if TYPE_CHECKING:
     from smol_dsl.language.shapes import Shape
@@ -100,13 +101,46 @@ class Extinction:
 
 
 @dataclass(frozen=True)
+class Final:
+    """`final V`: the channel's value over its tail (its body at the end of the run)."""
+
+    value: Expr
+    span: Span
+
+
+@dataclass(frozen=True)
+class ChannelLine:
+    """A `channel KIND[TARGETS]` line, checked: the channel, and the spans of its parts."""
+
+    channel: Channel
+    span: Span
+    """The whole line."""
+    kind_span: Span
+    target_spans: tuple[Span, ...] = ()
+    """One per target, in order."""
+    targets_span: Span | None = None
+    """The bracketed target list, brackets included."""
+
+
+@dataclass(frozen=True)
+class Section:
+    """One channel's part of a file: its `channel` line (None: the implicit gear channel of
+    the lines before any `channel` line) and its statements."""
+
+    channel: Channel
+    line: ChannelLine | None = None
+    bounds: Bounds | None = None
+    continuous: bool = False
+    final: Final | None = None
+    segments: tuple[Segment, ...] = ()
+
+
+@dataclass(frozen=True)
 class Program:
-    """A whole `.sched` file: its directives in order and its segments in order."""
+    """A whole `.sched` file: its file-level directives, and each channel's section in order."""
 
     name: str | None = None
     description: str | None = None
     lets: tuple[Let, ...] = ()
-    bounds: Bounds | None = None
     extinction: Extinction | None = None
-    continuous: bool = False
-    segments: tuple[Segment, ...] = field(default_factory=tuple)
+    sections: tuple[Section, ...] = field(default_factory=tuple)

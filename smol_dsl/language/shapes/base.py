@@ -2,7 +2,7 @@
 
 A unit owns everything about one kind of segment shape: its keyword, its values' checks and
 their error messages (`compile`, from the values of its grammar rule to exact sympy pieces),
-its proof hooks (`prove`, `float32_error`, `is_one`), how `Schedule` evaluates it in JAX
+its proof hooks (`prove`, `float32_error`, `is_constant`), how `Schedule` evaluates it in JAX
 (`evaluation`), and its line in the docs (`usage`, `meaning`). Its grammar rule,
 `KEYWORD_shape`, is in sched.lark (or given to `register` for a shape added at run time).
 """
@@ -108,9 +108,14 @@ class Shape:
             return self.float32_ulps * UNIT * max(abs(low), abs(high))
         return located_float32_error(piece.expr, piece.start, piece.end, where=segment.describe(), span=segment.span)
 
+    def is_constant(self, segment: SymbolicSegment, value: sp.Expr) -> bool:
+        """Whether the segment is identically `value` (proven exactly): with the channel's final
+        value, whether it may be part of the tail."""
+        return all(is_zero(p.expr - value) for p in segment.pieces)
+
     def is_one(self, segment: SymbolicSegment) -> bool:
-        """Whether alpha is identically 1 on the segment (it may then be part of the tail)."""
-        return all(is_zero(p.expr - 1) for p in segment.pieces)
+        """Whether alpha is identically 1 on the segment (`is_constant(segment, 1)`)."""
+        return self.is_constant(segment, sp.Integer(1))
 
     # ------------------------------------------------------------------ evaluation
     def evaluation(self, segment: SymbolicSegment) -> Evaluation:

@@ -80,8 +80,8 @@ class Random(Shape):
         assert low is not None and high is not None
         return Extrema(low, high, True), "constant" if low == high else "random"
 
-    def is_one(self, segment: SymbolicSegment) -> bool:
-        return bool(segment.params.low == 1 and segment.params.high == 1)
+    def is_constant(self, segment: SymbolicSegment, value: sp.Expr) -> bool:
+        return bool(segment.params.low == value and segment.params.high == value)
 
     def evaluation(self, segment: SymbolicSegment) -> Drawn:
         return Drawn(float(segment.params.low), float(segment.params.high - segment.params.low))
