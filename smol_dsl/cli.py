@@ -18,6 +18,7 @@ from smol_dsl.errors import UserInputError
 from smol_dsl.seeds import check_seed
 
 if TYPE_CHECKING:
+    from smol_dsl.language.channels import BodyPlan
     from smol_dsl.runner import RunConfig
     from smol_dsl.runner.footprint import Footprint
 
@@ -84,18 +85,25 @@ def build_parser() -> argparse.ArgumentParser:
     check = commands.add_parser(
         "check",
         help="verify schedules symbolically and print their certificates",
-        description="Parse, compile and symbolically verify each schedule, and print its certificate "
-        "(alpha's range, the alpha = 1 tail, monotone pieces, continuity at every join). "
+        description="Parse, compile and symbolically verify each schedule, and print its certificate, "
+        "one per channel (alpha's range, the alpha = 1 tail, monotone pieces, continuity at every join). "
+        "With --task, also check that the task's body has the actuators and links the channels name. "
         "Exit status 0 when all are valid, 2 otherwise.",
     )
     check.add_argument("schedules", nargs="+", metavar="SCHEDULE", help="a .sched path or a bundled name")
     check.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    check.add_argument(
+        "--task",
+        metavar="TASK",
+        help="also check the channels' targets against TASK's body, and print its actuators, links and groups",
+    )
 
     plot = commands.add_parser(
         "plot",
         help="plot alpha over training (the paper's Figure 2)",
         description="Plot alpha over training as per-phase steps with the smooth curve, several schedules "
-        "overlaid, and a dashed line where alpha becomes 1 for good. With no SCHEDULE, plots the paper's "
+        "overlaid, and a dashed line where alpha becomes 1 for good; one panel per channel when the "
+        "schedules scale other parameters too. With no SCHEDULE, plots the paper's "
         "Figure 2 (vanilla, smol, smol-reverse, human).",
     )
     plot.add_argument("schedules", nargs="*", metavar="SCHEDULE", help="a .sched path or a bundled name")
@@ -267,15 +275,54 @@ def _load_all(names: Sequence[str]) -> tuple[list, list[str]]:
 
 
 def _check(args: argparse.Namespace) -> int:
+    plan = None
+    if args.task is not None:
+        from smol_dsl.tasks import task_spec
+
+        _check_task(args.task)
+        plan = task_spec(args.task).body
     schedules, errors = _load_all(args.schedules)
+    if args.task is not None:
+        schedules, errors = _check_bodies(schedules, errors, plan, args.task)
+        if not args.quiet:
+            print(_body_text(plan, args.task))
     if not args.quiet:
         for schedule in schedules:
             about = f" - {schedule.description}" if schedule.description else ""
             print(f"{schedule.path}: ok: {schedule.name}{about}")
-            print(schedule.certificate)
+            print(_certificates_text(schedule))
     for error in errors:
         print(error, file=sys.stderr)
     return EXIT_USAGE if errors else EXIT_OK
+
+
+def _check_bodies(schedules: list, errors: list[str], plan: BodyPlan | None, task: str) -> tuple[list, list[str]]:
+    """The schedules whose channels the task's body has, and the errors of the others."""
+    from smol_dsl import ScheduleError
+
+    fitting = []
+    for schedule in schedules:
+        try:
+            schedule.check_body(plan, task)
+            fitting.append(schedule)
+        except ScheduleError as error:
+            errors.append(str(error))
+    return fitting, errors
+
+
+def _body_text(plan: BodyPlan | None, task: str) -> str:
+    """What `check --task` says of the task's body: the parts channels can name."""
+    if plan is None:
+        return f"{task}: its body is not listed; only channels without targets (`channel gear`) can be checked"
+    return "\n".join(f"{task}: {plan.describe_part(part)}" for part in ("actuators", "links"))
+
+
+def _certificates_text(schedule: Any) -> str:
+    """Each declared channel's certificate, under a `channel NAME:` line when there are several."""
+    certificates = schedule.certificates
+    if len(certificates) == 1:
+        return str(next(iter(certificates.values())))
+    return "\n".join(f"channel {channel.name}:\n{certificate}" for channel, certificate in certificates.items())
 
 
 def _plot(args: argparse.Namespace) -> int:

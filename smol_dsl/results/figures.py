@@ -1,5 +1,5 @@
-"""Every figure smol-dsl draws: the paper's Figure 2 (`schedule_figure`: alpha over
-training), a run's metrics.png and archive.png (`save_run_figures`), and the report's
+"""Every figure smol-dsl draws: the paper's Figure 2 (`schedule_figure`: alpha, and every
+other scheduled channel, over training), a run's metrics.png and archive.png (`save_run_figures`), and the report's
 figures (`results_figure`: median and IQR over seeds; `archives_figure`: final archives side
 by side); and the line styles and legend placement they share.
 
@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     import jax
 
     from smol_dsl import Schedule
+    from smol_dsl.language.channels import Channel
     from smol_dsl.runner.config import RunConfig
 
 FIGURE_FORMATS = (".png", ".svg", ".pdf")
@@ -101,36 +102,73 @@ def schedule_figure(
     key: jax.Array | None = None,
     smooth_points: int = 1001,
 ) -> Figure:
-    """Draw alpha per phase (steps) and the smooth curve for each schedule, overlaid.
+    """Draw each channel per phase (steps) and its smooth curve, the schedules overlaid.
 
-    A dashed vertical line marks where alpha becomes 1 for good (one line per distinct
-    tail start). Each schedule has its own colour (and, past 20 schedules, dash pattern);
-    past 10 schedules the legend goes below the plot. Returns the matplotlib Figure; save
-    it with `save_figure(figure, path)` or `figure.savefig(path)`.
+    One panel per channel of the union of the schedules' channels (in the order they are
+    first declared); every schedule is drawn in every panel, a channel it does not declare
+    at 1. Schedules of plain gear alone give the paper's Figure 2: one panel of alpha. A
+    dashed vertical line marks where a channel reaches its final value for good (one line
+    per distinct tail start). Each schedule has its own colour (and, past 20 schedules, dash
+    pattern); past 10 schedules the legend goes below the plot. Returns the matplotlib
+    Figure; save it with `save_figure(figure, path)` or `figure.savefig(path)`.
     """
+    channels = list(dict.fromkeys(channel for schedule in schedules for channel in schedule.channels))
+    figure = Figure(figsize=(7.0, 4.2 if len(channels) == 1 else 1.0 + 2.5 * len(channels)), layout="constrained")
+    panels = figure.subplots(len(channels), 1, sharex=True, squeeze=False)[:, 0]
+    styles = series_styles(len(schedules))
+    for axes, channel in zip(panels, channels, strict=True):
+        _draw_channel(axes, schedules, channel, styles, num_phases=num_phases, key=key, smooth_points=smooth_points)
+    panels[-1].set_xlabel("training progress (%)")
+    if len(channels) == 1 and channels[0].quantity == "alpha":
+        panels[0].set_title(f"Torque scaling schedules ({num_phases} phases)")
+    else:
+        figure.suptitle(f"Developmental schedules ({num_phases} phases)")
+    place_legend(figure, panels[0], fontsize=9 if len(schedules) <= LEGEND_INSIDE else 8, frameon=False)
+    return figure
+
+
+def _draw_channel(
+    axes: Any,
+    schedules: Sequence[Schedule],
+    channel: Channel,
+    styles: Sequence[dict[str, Any]],
+    *,
+    num_phases: int,
+    key: jax.Array | None,
+    smooth_points: int,
+) -> None:
+    """One channel's panel of `schedule_figure`: every schedule's steps and smooth curve."""
     import jax.numpy as jnp  # the schedules are JAX functions
 
-    figure = Figure(figsize=(7.0, 4.2), layout="constrained")
-    axes = figure.add_subplot()
     smooth_t = np.linspace(0.0, 1.0, smooth_points)
     phase_starts = np.arange(num_phases + 1) / num_phases * 100
-    for schedule, style in zip(schedules, series_styles(len(schedules)), strict=True):
-        steps = np.asarray(schedule.phase_alphas(num_phases, key))
+    for schedule, style in zip(schedules, styles, strict=True):
+        curve = schedule.curve(channel)
+        steps = np.asarray(curve.phase_alphas(num_phases, key))
         label = legend_label(schedule.name)
         axes.step(phase_starts, np.append(steps, steps[-1]), where="post", lw=2.0, label=label, **style)
-        curve = np.asarray(schedule.alpha(jnp.asarray(smooth_t), key))
-        axes.plot(smooth_t * 100, curve, color=style["color"], ls=style["ls"], lw=1.0, alpha=0.45)
-    for tail in sorted({float(s.tail_start) for s in schedules if 0 < s.tail_start < 1}):
+        smooth = np.asarray(curve.alpha(jnp.asarray(smooth_t), key))
+        axes.plot(smooth_t * 100, smooth, color=style["color"], ls=style["ls"], lw=1.0, alpha=0.45)
+    gear = channel.quantity == "alpha"
+    symbol = "α" if gear else channel.name
+    tails = {
+        (float(curve.tail_start), curve.final)
+        for curve in (schedule.curve(channel) for schedule in schedules if channel in schedule.channels)
+        if 0 < curve.tail_start < 1
+    }
+    for tail, final in sorted(tails):
         axes.axvline(tail * 100, color="0.3", ls="--", lw=1.0)
-        axes.annotate("α = 1", xy=(tail * 100, 1.0), xytext=(4, 6), textcoords="offset points", fontsize=8, color="0.3")
+        text = legend_label(f"{symbol} = {final:g}")
+        offset, align = ((4, 6), "left") if gear else ((-4, 6), "right")  # other channels' names are longer
+        axes.annotate(
+            text, xy=(tail * 100, final), xytext=offset, textcoords="offset points", ha=align, fontsize=8, color="0.3"
+        )
     axes.axhline(1.0, color="0.7", lw=0.6, zorder=0)
     axes.set_xlim(0, 100)
-    axes.set_xlabel("training progress (%)")
-    axes.set_ylabel("α (actuator gear scale)")
-    axes.set_title(f"Torque scaling schedules ({num_phases} phases)")
+    if not gear:
+        axes.margins(y=0.12)  # room above a final value at the top of the panel for its label
+    axes.set_ylabel("α (actuator gear scale)" if gear else f"{legend_label(channel.name)} (factor)")
     axes.grid(alpha=0.25)
-    place_legend(figure, axes, fontsize=9 if len(schedules) <= LEGEND_INSIDE else 8, frameon=False)
-    return figure
 
 
 def save_figure(figure: Figure, out: str | Path, *, dpi: int = 150) -> Path:
