@@ -30,6 +30,12 @@ MAX_NESTING = 100
 """Deepest expression: brackets, calls, and every operator of a chain (`a + b + c` is 2) count."""
 
 
+CHANNEL_LINE_HINT = (
+    "a channel line is `channel KIND` or `channel KIND[TARGET, ...]`, e.g. `channel mass` or "
+    "`channel gear[left_leg]`; the kinds are " + ", ".join(CHANNEL_KINDS)
+)
+
+
 def _example_hints() -> dict[str, list[str]]:
     """Hints for common mistakes, found by Lark's example matching: each hint lists a few
     wrong lines that fail the same way. Each shape's unit gives its own; the first match wins."""
@@ -53,6 +59,21 @@ def _example_hints() -> dict[str, list[str]]:
             "let peak 1.4",
             "let = 1.4",
             "let 1 = 2",
+        ],
+        CHANNEL_LINE_HINT: [
+            "channel",
+            "channel 1",
+            "channel gear left_leg",
+            "channel gear[left_leg",
+            "channel gear[left_leg\n",
+            "channel gear[left_leg,]",
+            "channel gear[left_leg right_leg]",
+            "channel gear[1]",
+            "channel gear(left_leg)",
+        ],
+        "`final` gives the channel's value over its tail, e.g. `final 0.5`": [
+            "final",
+            "final\n",
         ],
         'strings are written in double quotes, e.g. `name "SMOL"`': [
             "name SMOL",
@@ -453,7 +474,7 @@ def _syntax_error(error: UnexpectedInput, text: str) -> ScheduleError:
                 close = difflib.get_close_matches(str(token), kinds, n=1)
                 if close and (error.expected & {kind.upper() for kind in kinds}):
                     example = f"did you mean `{close[0]}`? The segment kinds are " + ", ".join(kinds)
-        if str(token) in ("[", "]") and "LSQB" not in error.expected:
+        if token.type in ("LSQB", "RSQB") and example != CHANNEL_LINE_HINT:  # in an expression
             message = f"unexpected character {str(token)!r}"
             example = "group with round brackets `( )`"
         if example is None and "_NL" in error.expected and token.type != "$END":
