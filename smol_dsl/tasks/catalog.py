@@ -109,8 +109,8 @@ HOPPER = TaskSpec(
     body=BodyPlan(
         actuators=("thigh_joint", "leg_joint", "foot_joint"),
         links=("torso", "thigh", "leg", "foot"),
-        actuator_groups={"leg": ("thigh_joint", "leg_joint", "foot_joint")},
-        link_groups={"leg": ("thigh", "leg", "foot")},
+        actuator_groups={"whole_leg": ("thigh_joint", "leg_joint", "foot_joint")},
+        link_groups={"whole_leg": ("thigh", "leg", "foot")},  # "leg" is a link: the shin
     ),
 )
 
