@@ -10,7 +10,8 @@ Prints one `name: value` line per figure:
 - vs_qdax_ratio: the engine's evaluations/s on one device over QDax's own MAP-Elites loop
   (`update`) with QDax's walker2d_uni scoring at the same settings (target >= 1.0);
 - compiles_2_phases, compiles_20_phases: XLA compilations of a whole run of 2 and of 20
-  phases, each in a fresh process (must be equal);
+  phases under a three-channel schedule (gear, mass, friction: `THREE_CHANNELS`), each in a
+  fresh process (must be equal: every channel's value is traced);
 - reeval_10pct_over_100pct: time to re-evaluate an archive 10% full over one 100% full
   (target <= 0.2).
 
@@ -55,8 +56,22 @@ def interleaved(programs: dict[str, Callable[[], object]], repeats: int) -> dict
     return {name: statistics.median(values) for name, values in seconds.items()}
 
 
+THREE_CHANNELS = """
+name "three channels"
+channel gear
+  0% .. 90%: random 0.6 .. 1.4 every 5%
+  90% .. 100%: tail
+channel mass
+  0% .. 90%: linear 0.5 -> 1
+  90% .. 100%: tail
+channel friction
+  0% .. 90%: linear 2 -> 1
+  90% .. 100%: tail
+"""
+
+
 def count_compiles(phases: int, batch_size: int, episode_length: int) -> int:
-    """XLA compilations of a complete run, in this (fresh) process."""
+    """XLA compilations of a complete run under THREE_CHANNELS, in this (fresh) process."""
     import smol_dsl
     from smol_dsl.runner import preset_config, run_experiment
 
@@ -77,7 +92,7 @@ def count_compiles(phases: int, batch_size: int, episode_length: int) -> int:
         episode_length=episode_length,
         num_init_cvt_samples=5000,
     )
-    run_experiment("walker2d", smol_dsl.load("vanilla"), config)
+    run_experiment("walker2d", smol_dsl.parse(THREE_CHANNELS), config)
     return len(compiles)
 
 
@@ -122,7 +137,7 @@ def main() -> None:
         state they update (its archive)."""
         put = engine.put
         state = {"archive": engine.empty_archives(centroids[None]), "key": jax.random.key(4)}
-        inputs = (put(jnp.ones((1,), jnp.float32)), put(stack_runs([start])))
+        inputs = (put(jnp.ones((1, 1), jnp.float32)), put(stack_runs([start])))  # one run, body (alpha,)
 
         def generation() -> object:
             state["key"], key = jax.random.split(state["key"])
@@ -185,7 +200,7 @@ def main() -> None:
     full = full.replace(genotypes=jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), trained.genotypes))
     tenth = full.replace(fitnesses=jnp.where(jnp.arange(1024)[:, None] < 103, 0.0, -jnp.inf))
     put = one.put
-    reeval_inputs = (put(jnp.ones((1,), jnp.float32)), put(stack_runs([start])), put(jnp.zeros((1,), jnp.float32)))
+    reeval_inputs = (put(jnp.ones((1, 1), jnp.float32)), put(stack_runs([start])), put(jnp.zeros((1,), jnp.float32)))
 
     def reevaluate(archive: object) -> Callable[[], object]:
         stacked = put(stack_runs([archive]))

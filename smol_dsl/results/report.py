@@ -91,7 +91,8 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
 
     Every run directory is read and checked first (`read_run`); then refuses (ReportError)
     no runs, unfinished runs, runs of several tasks or settings, two schedules with one name,
-    and a (schedule, seed) given twice, seeds that JAX takes as equal (S and S + 2**32) included.
+    schedules that end on different bodies (a declared `final` factor), and a (schedule, seed)
+    given twice, seeds that JAX takes as equal (S and S + 2**32) included.
     """
     directories = find_run_directories(paths)
     if not directories:
@@ -161,8 +162,26 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
                 "leave one of them out"
             )
         group.append(run)
+    _check_final_bodies(groups)
     ordered = sorted(groups, key=lambda name: (ORDER.index(name) if name in ORDER else len(ORDER), name))
     return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
+
+
+def _check_final_bodies(groups: dict[str, list[RunRecord]]) -> None:
+    """Refuse schedules whose final bodies differ: their final scores are of different robots."""
+    first_name, first = next(iter(groups.items()))
+    for name, group in groups.items():
+        body, reference = group[0].final_body, first[0].final_body
+        differing = sorted(set(body) | set(reference), key=str)
+        differing = [channel for channel in differing if body.get(channel, 1.0) != reference.get(channel, 1.0)]
+        if differing:
+            channel = differing[0]
+            raise ReportError(
+                f"{name} and {first_name} end on different bodies: channel {channel} ends at "
+                f"{body.get(channel, 1.0):g} in {name} ({group[0].directory}) and at "
+                f"{reference.get(channel, 1.0):g} in {first_name} ({first[0].directory}); final scores are only "
+                "comparable on the same final body: report them separately, or give the schedules the same `final`"
+            )
 
 
 def _steps(run: RunRecord) -> list[tuple[int, int, int]]:

@@ -267,9 +267,41 @@ SCORES = ("max_fitness", "coverage", "qd_score")
 """The columns that score an archive: what a report compares and figures draw."""
 
 
-def metrics_row(**values: Any) -> dict[str, Any]:
-    """A metrics.csv row of METRICS_SCHEMA: every column, typed (`float(jax_scalar)` done here)."""
-    return METRICS_SCHEMA.row(**values)
+def channel_column(name: str) -> Column:
+    """The metrics.csv column of a scheduled channel other than the actuators' gear (which is
+    `alpha`): named as the channel (`mass`, `gear[left_leg]`), its factor in the phase."""
+    return Column(name, float, f"the phase's {name} factor", valid=_positive, expected="a finite number above 0")
+
+
+def metrics_schema(channels: Sequence[str] = ()) -> MetricsSchema:
+    """METRICS_SCHEMA with one column per channel other than plain `gear` (whose factor is
+    `alpha`), right after `alpha`, in the order given."""
+    extra = tuple(channel_column(name) for name in channels if name not in ("gear", "alpha"))
+    if not extra:
+        return METRICS_SCHEMA
+    at = METRICS_SCHEMA.names.index("alpha") + 1
+    return MetricsSchema(METRICS_SCHEMA.columns[:at] + extra + METRICS_SCHEMA.columns[at:])
+
+
+def schema_of_header(header: Sequence[str]) -> MetricsSchema:
+    """The schema of a metrics.csv with this header: METRICS_SCHEMA and a column for every
+    header name that is a channel's (other columns are ignored, as before)."""
+    from smol_dsl.language.channels import Channel
+
+    channels = []
+    for name in header:
+        if name in METRICS_SCHEMA.names:
+            continue
+        try:
+            channels.append(Channel.parse(name).name)
+        except ValueError:
+            continue
+    return metrics_schema(channels)
+
+
+def metrics_row(schema: MetricsSchema = METRICS_SCHEMA, **values: Any) -> dict[str, Any]:
+    """A metrics.csv row of `schema`: every column, typed (`float(jax_scalar)` done here)."""
+    return schema.row(**values)
 
 
 # ---------------------------------------------------------------------------- writing
@@ -340,7 +372,18 @@ class MetricsLog:
 def certificate_record(schedule: Schedule) -> dict[str, Any]:
     """certificate.json's contents: the schedule's name, the start of its α = 1 tail and
     its certificate."""
-    return {"name": schedule.name, "tail_start": float(schedule.tail_start), **schedule.certificate.to_dict()}
+    record = {"name": schedule.name, "tail_start": float(schedule.tail_start), **schedule.certificate.to_dict()}
+    record["final_body"] = {channel.name: value for channel, value in schedule.final_body.items()}
+    record["channels"] = {channel.name: cert.to_dict() for channel, cert in schedule.certificates.items()}
+    return record
+
+
+def certificate_text(schedule: Schedule) -> str:
+    """The certificate as `smol-dsl check` prints it: one per scheduled channel."""
+    certificates = schedule.certificates
+    if len(certificates) == 1:
+        return str(next(iter(certificates.values())))
+    return "\n".join(f"channel {channel.name}:\n{cert}" for channel, cert in certificates.items())
 
 
 def write_run_files(directory: Path, config: RunConfig, schedule: Schedule) -> list[Path]:
@@ -351,7 +394,7 @@ def write_run_files(directory: Path, config: RunConfig, schedule: Schedule) -> l
         CONFIG_FILE: config.to_json(),
         SCHEDULE_FILE: schedule.source,
         CERTIFICATE_FILE: json.dumps(certificate_record(schedule), indent=2),
-        CERTIFICATE_TEXT_FILE: str(schedule.certificate),
+        CERTIFICATE_TEXT_FILE: certificate_text(schedule),
     }
     written: list[Path] = []
     try:
@@ -633,8 +676,9 @@ def read_config(path: Path) -> RunConfig:
     return config
 
 
-def read_certificate(path: Path) -> tuple[str, float]:
-    """The schedule's name and the start of its alpha = 1 tail, from certificate.json."""
+def read_certificate(path: Path) -> tuple[str, float, dict[str, float]]:
+    """The schedule's name, the start of its final-body tail and its final body (the channels
+    whose final factor is not 1, by name), from certificate.json."""
     fix = f"rerun the run, {_leave_out(path.parent)}"
     try:
         data = json.loads(read_text(path))
@@ -648,7 +692,13 @@ def read_certificate(path: Path) -> tuple[str, float]:
         raise RunDirectoryError(
             f'{path}: "tail_start" must be a number from 0 to 1, not {json.dumps(tail)[:40]}; {fix}'
         )
-    return name, float(tail)
+    final = data.get("final_body", {})  # absent before multi-channel schedules: the standard body
+    if not isinstance(final, dict) or not all(
+        isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+        for value in final.values()
+    ):
+        raise RunDirectoryError(f'{path}: "final_body" must map channels to factors above 0; {fix}')
+    return name, float(tail), {str(channel): float(value) for channel, value in final.items() if value != 1}
 
 
 def read_metrics(
@@ -671,6 +721,8 @@ def read_metrics(
             header = next(reader, None)
             if header is None:
                 raise RunDirectoryError(f"{path}: empty; the run wrote no metrics (it stopped at once); {rerun}")
+            if schema is METRICS_SCHEMA:  # and a column per scheduled channel the header names
+                schema = schema_of_header(header)
             missing = [name for name in schema.names if name not in header]
             if missing or len(set(header)) != len(header):
                 what = f"lacks the column(s) {', '.join(missing)}" if missing else "names a column twice"
@@ -765,6 +817,7 @@ class RunRecord:
     tail_start: float
     rows: list[dict[str, Any]]
     archive: FinalArchive | None = None  # None until the run has finished
+    final_body: Mapping[str, float] = dataclasses.field(default_factory=dict)  # channels not ending at 1
 
     @property
     def task(self) -> str:
@@ -817,10 +870,10 @@ def read_run(directory: Path) -> RunRecord:
     naming the file (and line) that cannot be used, and what to do."""
     directory = Path(directory)
     config = read_config(directory / CONFIG_FILE)
-    name, tail_start = read_certificate(directory / CERTIFICATE_FILE)
+    name, tail_start, final_body = read_certificate(directory / CERTIFICATE_FILE)
     source = read_text(directory / SCHEDULE_FILE)
     rows = read_metrics(directory / METRICS_FILE, config)
-    run = RunRecord(directory, config, name, source, tail_start, rows)
+    run = RunRecord(directory, config, name, source, tail_start, rows, final_body=final_body)
     if run.finished:
         run = dataclasses.replace(run, archive=read_final_archive(directory, config))
     return run

@@ -89,7 +89,9 @@ def preset_config(task: str, preset: str = "quick", **overrides: Any) -> RunConf
 
 
 def check_config(config: RunConfig, schedule: Schedule) -> None:
-    """Raise ValueError, with a fix, for settings that cannot make a fair run."""
+    """Raise ValueError, with a fix, for settings that cannot make a fair run, and a
+    ScheduleError, located, for a channel naming actuators or links the task lacks."""
+    schedule.check_body(task_spec(config.task).body, config.task)
     for name, value, least in (
         ("--evals", config.evaluations, 1),
         ("--batch-size", config.batch_size, 1),
@@ -109,11 +111,11 @@ def check_config(config: RunConfig, schedule: Schedule) -> None:
     if schedule.tail_phases(config.num_phases) < 1:
         least = next(n for n in range(1, 100_001) if schedule.tail_phases(n) >= 1)
         raise ValueError(
-            f"with {config.num_phases} phases no phase lies wholly in the alpha = 1 tail of {schedule.name} "
-            f"(from {float(schedule.tail_start):.0%}), so the run would not end on the standard body; "
+            f"with {config.num_phases} phases no phase lies wholly in the final-body tail of {schedule.name} "
+            f"(from {float(schedule.tail_start):.0%}), so the run would not end on its final body; "
             f"use --phases {least} or more"
         )
-    # The certificate proves every phase's alpha finite and positive in float32; evaluate the
-    # table anyway before anything is created, so a defect can never waste a run (a
+    # The certificates prove every phase's factors finite and positive in float32; evaluate
+    # the table anyway before anything is created, so a defect can never waste a run (a
     # ScheduleError naming the file and the phase).
-    schedule.checked_phase_alphas(config.num_phases)
+    schedule.checked_phase_values(config.num_phases)

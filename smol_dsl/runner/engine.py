@@ -2,19 +2,19 @@
 
 `smol-dsl run` is one run of it and `smol-dsl sweep` many. Every run has the same task and
 settings but its own seed, schedule and archive, and all runs reach their phase boundaries
-together. So one jitted program advances every run by one generation (`RunStep.generation`),
-and one re-evaluates every archive (`RunStep.reevaluate_chunk`), with each run's α a
-traced value. With `jax.shard_map` over a (runs, population) device mesh, runs are
-split across devices (independent: no communication), and devices left over split each
-offspring batch (its rollouts are gathered back). On each device the local runs are
-either vmapped together (accelerators: one big batch) or mapped one after another inside
-the program (`runs_per_step`; CPUs, where rollouts slow down as batches grow past ~128).
+together. So one jitted program advances every run by one generation
+(`RunStep.generation`), and one re-evaluates every archive (`RunStep.reevaluate_chunk`),
+with each run's body (the factors of the schedules' channels: alpha, mass, friction, ...)
+a traced array. With `jax.shard_map` over a (runs, population) device mesh, runs are split
+across devices (independent: no communication), and devices left over split each offspring
+batch (its rollouts are gathered back). On each device the local runs are either vmapped
+together (accelerators: one big batch) or mapped one after another inside the program
+(`runs_per_step`; CPUs, where rollouts slow down as batches grow past ~128).
 
 A single run on several devices splits its population across all of them, so `smol-dsl
 run` uses the whole machine. Per run, the programs are the same per-run step with the same
 random keys whatever the layout, so a sweep's run follows the same algorithm and random
-streams as `smol-dsl run` of that seed.
-"""
+streams as `smol-dsl run` of that seed."""
 
 from __future__ import annotations
 
@@ -29,6 +29,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 from qdax.utils.metrics import default_qd_metrics
 
+from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.runner.config import RunConfig
 from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites, reevaluation_chunks
 from smol_dsl.tasks import make_task
@@ -65,7 +66,8 @@ class Engine:
     first axis; along the second, each device scores its share of every offspring batch
     and the shares are gathered, so a sweep with fewer runs than devices still uses them
     all. Every array argument and result has the runs axis first; R must be a multiple of
-    the runs axis (`padded_runs`).
+    the runs axis (`padded_runs`). A run's body is a (channels,) array of the factors of
+    `channels`, in that order (`Task.with_channels`).
     """
 
     def __init__(
@@ -78,8 +80,10 @@ class Engine:
         devices: list[jax.Device] | None = None,
         runs_per_step: int | None = -1,
         num_runs: int | None = None,
+        channels: tuple[Channel, ...] = (GEAR,),
     ) -> None:
-        self.task = task
+        self.channels = tuple(channels)
+        self.task = task = task.with_channels(self.channels)
         self.batch_size = batch_size
         devices = list(devices) if devices is not None else jax.local_devices()
         self.runs_per_step = default_runs_per_step(devices) if runs_per_step == -1 else runs_per_step
@@ -120,16 +124,16 @@ class Engine:
         sharded = jax.shard_map(local, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
         return jax.jit(sharded, donate_argnums=donate)
 
-    def _score(self, genotypes: Any, alpha: jax.Array, start: Any) -> tuple[jax.Array, jax.Array]:
-        """Score one run's batch; along the population axis each device rolls out its
-        share, and the shares are gathered in order."""
+    def _score(self, genotypes: Any, body: jax.Array, start: Any) -> tuple[jax.Array, jax.Array]:
+        """Score one run's batch in its body; along the population axis each device rolls out
+        its share, and the shares are gathered in order."""
         shares = self.population_devices
         if shares == 1:
-            return self.task.score(genotypes, alpha, start)
+            return self.task.score(genotypes, body, start)
         size = self.batch_size // shares
         first = jax.lax.axis_index(POPULATION) * size
         mine = jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), genotypes)
-        fitnesses, descriptors = self.task.score(mine, alpha, start)
+        fitnesses, descriptors = self.task.score(mine, body, start)
         gather = partial(jax.lax.all_gather, axis_name=POPULATION, tiled=True)
         return gather(fitnesses), gather(descriptors)
 
@@ -146,23 +150,24 @@ class Engine:
         return pairs[:, 0], pairs[:, 1]
 
     def step(
-        self, repertoires: MapElitesRepertoire, alphas: jax.Array, starts: Any, keys: jax.Array
+        self, repertoires: MapElitesRepertoire, bodies: jax.Array, starts: Any, keys: jax.Array
     ) -> tuple[MapElitesRepertoire, dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        """One generation of every run (the archives are donated). Returns the archives,
-        each run's metrics, non-finite results and whether it was reseeded."""
-        repertoires, metrics, dropped, reseeded = self._step(repertoires, alphas, starts, keys)
+        """One generation of every run in its body, (runs, channels) (the archives are
+        donated). Returns the archives, each run's metrics, non-finite results and whether
+        it was reseeded."""
+        repertoires, metrics, dropped, reseeded = self._step(repertoires, bodies, starts, keys)
         metrics, dropped, reseeded = jax.device_get((metrics, dropped, reseeded))
         return repertoires, metrics, np.asarray(dropped), np.asarray(reseeded)
 
     def reevaluate(
         self,
         repertoires: MapElitesRepertoire,
-        alphas: jax.Array,
+        bodies: jax.Array,
         starts: Any,
         extinctions: jax.Array,
         keys: jax.Array,
     ) -> tuple[MapElitesRepertoire, np.ndarray, np.ndarray]:
-        """Every run's elites re-scored at its alpha, thinned by its extinction, in fresh
+        """Every run's elites re-scored in its new body, thinned by its extinction, in fresh
         archives. Chunks run over the filled cells only (up to the fullest archive).
         Returns the archives, and per run the elites re-evaluated and the non-finite ones."""
         filled_mask = np.asarray(repertoires.fitnesses) > -np.inf
@@ -175,7 +180,7 @@ class Engine:
                 repertoires.genotypes,
                 self.put(jnp.asarray(index)),
                 self.put(jnp.asarray(valid)),
-                alphas,
+                bodies,
                 starts,
                 extinctions,
                 keys,
@@ -197,6 +202,7 @@ def _engine(
     devices: tuple[jax.Device, ...],
     runs_per_step: int | None,
     num_runs: int,
+    channels: tuple[Channel, ...],
 ) -> Engine:
     return Engine(
         task,
@@ -206,6 +212,7 @@ def _engine(
         devices=list(devices),
         runs_per_step=runs_per_step,
         num_runs=num_runs,
+        channels=channels,
     )
 
 
@@ -216,14 +223,27 @@ def shared_task(name: str, episode_length: int, hidden_layer_sizes: tuple[int, .
 
 
 def shared_engine(
-    task: Task | str, config: RunConfig, devices: Sequence[jax.Device], runs_per_step: int | None, num_runs: int
+    task: Task | str,
+    config: RunConfig,
+    devices: Sequence[jax.Device],
+    runs_per_step: int | None,
+    num_runs: int,
+    channels: Sequence[Channel] = (GEAR,),
 ) -> Engine:
-    """The engine for these settings, shared within a process so that runs and sweeps of the
-    same task and settings reuse its compilations; a task given by name is built here."""
+    """The engine for these settings and channels, shared within a process so that runs and
+    sweeps of the same task, settings and channels reuse its compilations; a task given by
+    name is built here."""
     if isinstance(task, str):
         task = shared_task(task, config.episode_length, tuple(config.hidden_layer_sizes))
     return _engine(
-        task, config.batch_size, config.iso_sigma, config.line_sigma, tuple(devices), runs_per_step, num_runs
+        task,
+        config.batch_size,
+        config.iso_sigma,
+        config.line_sigma,
+        tuple(devices),
+        runs_per_step,
+        num_runs,
+        tuple(channels),
     )
 
 

@@ -1,8 +1,9 @@
 """MAP-Elites with a changing body: one run's step, on QDax's ask/tell and archive.
 
 `RunStep` is the single per-run step both `smol-dsl run` and `sweep` use (through
-`smol_dsl.runner.engine`, which maps it over runs and devices). It is pure, with α a
-traced argument, so a run of any number of phases compiles the same few programs:
+`smol_dsl.runner.engine`, which maps it over runs and devices). It is pure, with the body
+(the factor of every scheduled channel: α, mass, friction, ...) a traced argument, so a
+run of any number of phases compiles the same few programs:
 
 - `generation`: offspring by iso+line variation of uniformly selected elites (QDax's
   `ask`), or fresh policies when the archive is empty (reseeding); the task's rollouts at
@@ -120,8 +121,9 @@ def reevaluation_chunks(filled: list[np.ndarray], batch_size: int) -> Iterator[t
 @dataclass(frozen=True)
 class RunStep:
     """One run's step of phased MAP-Elites, traced (not jitted): the engine maps it over
-    runs and devices. `score(genotypes, alpha, start)` is the task's α-aware scoring of a
-    batch (the engine's, split across devices where it has several)."""
+    runs and devices. `score(genotypes, body, start)` is the task's scoring of a batch in a
+    body, the factors of the scheduled channels (the engine's, split across devices where it
+    has several)."""
 
     map_elites: MAPElites
     init_policies: Callable[[jax.Array, int], Any]
@@ -129,9 +131,9 @@ class RunStep:
     batch_size: int
 
     def generation(
-        self, repertoire: MapElitesRepertoire, alpha: jax.Array, start: Any, key: jax.Array
+        self, repertoire: MapElitesRepertoire, body: jax.Array, start: Any, key: jax.Array
     ) -> tuple[MapElitesRepertoire, Metrics, jax.Array, jax.Array]:
-        """One generation at actuator scale alpha: offspring of the archive's elites by
+        """One generation in `body`: offspring of the archive's elites by
         iso+line variation, or fresh random policies if the archive is empty (the first
         generation, or after extinction emptied it), scored and inserted. Returns the
         archive, QDax's metrics, how many results were non-finite and whether it reseeded."""
@@ -143,7 +145,7 @@ class RunStep:
             lambda: self.init_policies(ask_key, self.batch_size),
             lambda: self.map_elites.ask(repertoire, None, ask_key)[0],
         )
-        fitnesses, descriptors = self.score(genotypes, alpha, start)
+        fitnesses, descriptors = self.score(genotypes, body, start)
         repertoire, metrics, dropped = tell_finite(self.map_elites, genotypes, fitnesses, descriptors, repertoire)
         return repertoire, metrics, dropped, empty
 
@@ -153,18 +155,18 @@ class RunStep:
         source: Any,
         index: jax.Array,
         valid: jax.Array,
-        alpha: jax.Array,
+        body: jax.Array,
         start: Any,
         extinction: jax.Array,
         key: jax.Array,
     ) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
         """Re-score one chunk of the elites of `source` (genotypes at `index`, `valid` ones
-        real) at alpha; those that survive extinction and score finite go into `fresh`.
+        real) in `body`; those that survive extinction and score finite go into `fresh`.
         Returns the archive, the run's next key and how many valid ones were non-finite."""
         key, score_key, death_key = jax.random.split(key, 3)
         del score_key
         genotypes = jax.tree.map(lambda x: x[index], source)
-        fitnesses, descriptors = self.score(genotypes, alpha, start)
+        fitnesses, descriptors = self.score(genotypes, body, start)
         survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
         fresh, dropped = insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
         return fresh, key, dropped

@@ -7,14 +7,16 @@ import time
 from typing import Any
 
 from smol_dsl import Schedule
+from smol_dsl.results.rundir import METRIC_FIELDS
 from smol_dsl.runner.config import RunConfig
 from smol_dsl.runner.training import RunResult
 
 
 class ProgressBar:
-    """A tqdm bar over generations. For one run it shows the phase, alpha, coverage, max
-    fitness and evals/s; for a sweep (`update` given every run's row) the phase, the best
-    max fitness and the median coverage over runs, and evals/s over all runs."""
+    """A tqdm bar over generations. For one run it shows the phase, alpha and every other
+    scheduled channel's factor, coverage, max fitness and evals/s; for a sweep (`update`
+    given every run's row) the phase, the best max fitness and the median coverage over
+    runs, and evals/s over all runs."""
 
     def __init__(self, config: RunConfig) -> None:
         from tqdm import tqdm
@@ -38,7 +40,8 @@ class ProgressBar:
         rate = (evaluations - self._first_evaluations) / elapsed
         phase = f"phase {row['phase'] + 1}/{self._config.num_phases}"
         if len(rows) == 1:
-            about = f"{phase} alpha {row['alpha']:.3f} cov {row['coverage']:.1f}% max {row['max_fitness']:.1f}"
+            body = " ".join(f"{name} {row[name]:.3f}" for name in ("alpha", *channel_columns(row)))
+            about = f"{phase} {body} cov {row['coverage']:.1f}% max {row['max_fitness']:.1f}"
         else:
             coverage = sorted(r["coverage"] for r in rows)[len(rows) // 2]
             best = max(r["max_fitness"] for r in rows)
@@ -48,6 +51,11 @@ class ProgressBar:
 
     def close(self) -> None:
         self._bar.close()
+
+
+def channel_columns(row: dict[str, Any]) -> list[str]:
+    """A metrics row's columns of scheduled channels other than the actuators' gear (alpha)."""
+    return [name for name in row if name not in METRIC_FIELDS]
 
 
 def summary_line(result: RunResult, schedule: Schedule) -> str:

@@ -57,7 +57,7 @@ def run_experiment(
     with contextlib.ExitStack() as held:
         if directory is not None:  # locked until the run returns: one process at a time
             held.enter_context(prepare_run_directory(directory, schedule, config, resume))
-        engine = shared_engine(task, config, devices, footprint.runs_per_step, 1)
+        engine = shared_engine(task, config, devices, footprint.runs_per_step, 1, schedule.channels)
         results = train(
             engine,
             engine.task,

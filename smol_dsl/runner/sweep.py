@@ -23,7 +23,7 @@ from smol_dsl.runner.config import RunConfig, RunError
 from smol_dsl.runner.directories import out_path, prepare_sweep_directory, run_name
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import fit_sweep
-from smol_dsl.runner.training import PlannedRun, Progress, RunResult, train
+from smol_dsl.runner.training import PlannedRun, Progress, RunResult, run_channels, train
 from smol_dsl.tasks.base import Task
 
 
@@ -102,7 +102,8 @@ def run_sweep(
             held.enter_context(
                 prepare_sweep_directory(directory, every, runs, config, resume, parts > 1, checkpoint_name)
             )
-        engine = shared_engine(task, config, devices, runs_per_step, len(runs))
+        channels = run_channels([run.schedule for run in runs])
+        engine = shared_engine(task, config, devices, runs_per_step, len(runs), channels)
         checkpoint = directory / checkpoint_name if directory is not None else None
         return train(
             engine,

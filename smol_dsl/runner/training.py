@@ -1,13 +1,13 @@
 """The phase loop: runs trained together on the engine, logged, checkpointed, resumable.
 
 `train` is what `run_experiment` (one run) and `run_sweep` (many) both do once their
-directories are set up. Phase k of N trains at alpha_k = schedule.phase_alpha(k, N) of
-each run's schedule. At each phase boundary every archive is re-evaluated under its new
-alpha, thinned by its schedule's extinction probability and re-inserted into a fresh
-archive; a checkpoint is handed to the background writer right after, so an interrupted
-training resumes from its last boundary and ends with exactly the archives and metrics
-of an uninterrupted one.
-"""
+directories are set up. Phase k of N trains in the body of each run's schedule at phase k:
+every scheduled channel's factor at t = k / N (`Schedule.checked_phase_values`; alpha, the
+actuators' gear, for a file that declares no channels), a traced (channels,) array per
+run. At each phase boundary every archive is re-evaluated under its new body, thinned by
+its schedule's extinction probability and re-inserted into a fresh archive; a checkpoint
+is handed to the background writer right after, so an interrupted training resumes from
+its last boundary and ends with exactly the archives and metrics of an uninterrupted one."""
 
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from smol_dsl import Schedule
+from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.results import rundir
 from smol_dsl.results.rundir import CHECKPOINT_FILE, MetricsLog
 from smol_dsl.runner.checkpoint import (
@@ -62,13 +63,21 @@ class RunResult:
     repertoire: Any  # qdax MapElitesRepertoire
     metrics: list[dict[str, Any]]
     config: RunConfig
-    alphas: np.ndarray
+    alphas: np.ndarray  # (phases,): the actuators' gear factor (alpha) per phase
     out_dir: Path | None
     seconds: float
+    values: np.ndarray | None = None  # (phases, channels): every channel's factor per phase
+    channels: tuple[Channel, ...] = (GEAR,)
 
     @property
     def final(self) -> dict[str, Any]:
         return self.metrics[-1]
+
+
+def run_channels(schedules: list[Schedule]) -> tuple[Channel, ...]:
+    """Every channel the schedules declare, in order of first appearance: the traced body of
+    runs trained together (a run's value for a channel its schedule lacks is 1)."""
+    return tuple(dict.fromkeys(channel for schedule in schedules for channel in schedule.channels))
 
 
 def schedule_key(seed: int) -> jax.Array:
@@ -88,13 +97,20 @@ def owner(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
 
 
 def metrics_row(
-    state: RunState, metrics: dict[str, float], alpha: float, event: str, non_finite: int
+    state: RunState,
+    metrics: dict[str, float],
+    body: dict[str, float],
+    event: str,
+    non_finite: int,
+    schema: rundir.MetricsSchema = rundir.METRICS_SCHEMA,
 ) -> dict[str, Any]:
-    """The metrics.csv row of a run's state after an event."""
+    """The metrics.csv row of a run's state after an event; `body` holds `alpha` (the
+    actuators' gear factor) and a factor per other channel of the run's schedule."""
     return rundir.metrics_row(
+        schema,
         generation=state.generation,
         phase=state.phase,
-        alpha=alpha,
+        **body,
         event=event,
         evaluations=state.evaluations,
         reevaluations=state.reevaluations,
@@ -119,9 +135,10 @@ class Training:
     """Runs of one task and settings trained together on an engine, generation by generation.
 
     All runs reach their phase boundaries together. Per run: its own seed (CVT centroids,
-    episode start, keys), schedule (alpha per phase, extinction) and archive; the batched
-    arrays (archives, keys, alphas, starts) have the runs axis first, padded to the engine's
-    runs axis with copies of the last run whose results are dropped.
+    episode start, keys), schedule (each channel's factor per phase, extinction) and archive;
+    the batched arrays (archives, keys, body values, starts) have the runs axis first, padded
+    to the engine's runs axis with copies of the last run whose results are dropped. The
+    engine's task takes the values of `channels` (`run_channels` of the runs' schedules).
     """
 
     def __init__(
@@ -132,15 +149,23 @@ class Training:
         config: RunConfig,
         checkpoint: Path | None,
         progress: Progress | None = None,
+        channels: tuple[Channel, ...] | None = None,
     ) -> None:
         self.engine, self.task, self.runs, self.config = engine, task, runs, config
         self.checkpoint, self.progress = checkpoint, progress
         self.owner = owner(runs, config)
+        self.channels = channels if channels is not None else run_channels([run.schedule for run in runs])
         padded = runs + [runs[-1]] * (engine.padded_runs(len(runs)) - len(runs))
         seeds = [run.config.seed for run in padded]
-        self.alphas = np.stack(
-            [run.schedule.checked_phase_alphas(config.num_phases, schedule_key(run.config.seed)) for run in padded]
+        self.values = np.stack(  # (runs, phases, channels)
+            [
+                run.schedule.checked_phase_values(config.num_phases, schedule_key(run.config.seed), self.channels)
+                for run in padded
+            ]
         )
+        gear = self.channels.index(GEAR) if GEAR in self.channels else None
+        self.alphas = self.values[..., gear] if gear is not None else np.ones(self.values.shape[:2], np.float32)
+        self.schemas = [rundir.metrics_schema([c.name for c in run.schedule.channels]) for run in runs]
         starts = {seed: task.episode_start(seed) for seed in dict.fromkeys(seeds)}
         self.starts = engine.put(stack_runs([starts[seed] for seed in seeds]))
         self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
@@ -162,8 +187,8 @@ class Training:
         else:
             self._initial_population()
         self.logs = [
-            MetricsLog(run.directory / rundir.METRICS_FILE if run.directory is not None else None, state.rows)
-            for run, state in zip(self.runs, self.states, strict=True)
+            MetricsLog(run.directory / rundir.METRICS_FILE if run.directory is not None else None, state.rows, schema)
+            for run, state, schema in zip(self.runs, self.states, self.schemas, strict=True)
         ]
         self._show()
 
@@ -193,14 +218,15 @@ class Training:
                 )
         archives = self.engine.empty_archives(jnp.stack([centroids[seed] for seed in self._seeds]))
         self.repertoires, metrics, dropped, _ = self.engine.step(
-            archives, self._alphas_of(0), self.starts, self.engine.put(jnp.stack(init_keys))
+            archives, self._values_of(0), self.starts, self.engine.put(jnp.stack(init_keys))
         )
         self.keys = self.engine.put(jnp.stack(main_keys))
         batch = self.config.batch_size
         self.states = []
         for r in range(len(self.runs)):
             state = RunState(0, 0, batch, 0, int(dropped[r]), [])
-            state.rows.append(metrics_row(state, _run_metrics(metrics, r), self.alphas[r, 0], "init", dropped[r]))
+            row = metrics_row(state, _run_metrics(metrics, r), self._body(r, 0), "init", dropped[r], self.schemas[r])
+            state.rows.append(row)
             self.states.append(state)
         if self.checkpoint is not None:
             save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
@@ -225,7 +251,7 @@ class Training:
         """Every archive re-scored at its run's alpha of `phase`, thinned by extinction."""
         self.keys, subkeys = self.engine.split(self.keys)
         self.repertoires, evaluated, dropped = self.engine.reevaluate(
-            self.repertoires, self._alphas_of(phase), self.starts, self.extinctions, subkeys
+            self.repertoires, self._values_of(phase), self.starts, self.extinctions, subkeys
         )
         for r, state in enumerate(self.states):
             state.phase = phase
@@ -237,7 +263,7 @@ class Training:
         """One generation of every run at its alpha of `phase`."""
         self.keys, subkeys = self.engine.split(self.keys)
         self.repertoires, metrics, dropped, reseeded = self.engine.step(
-            self.repertoires, self._alphas_of(phase), self.starts, subkeys
+            self.repertoires, self._values_of(phase), self.starts, subkeys
         )
         for r, state in enumerate(self.states):
             state.generation = generation
@@ -245,12 +271,22 @@ class Training:
             state.non_finite += int(dropped[r])
         self._record(metrics, ["reseed" if reseeded[r] else "train" for r in range(len(self.runs))], dropped)
 
-    def _alphas_of(self, phase: int) -> jax.Array:
-        return self.engine.put(jnp.asarray(self.alphas[:, phase], dtype=jnp.float32))
+    def _values_of(self, phase: int) -> jax.Array:
+        """Every run's body in `phase`: (runs, channels) float32."""
+        return self.engine.put(jnp.asarray(self.values[:, phase], dtype=jnp.float32))
+
+    def _body(self, run: int, phase: int) -> dict[str, float]:
+        """A run's metrics.csv body columns in a phase: alpha, and its schedule's other channels."""
+        body = {"alpha": float(self.alphas[run, phase])}
+        for channel in self.runs[run].schedule.channels:
+            if channel != GEAR:
+                body[channel.name] = float(self.values[run, phase, self.channels.index(channel)])
+        return body
 
     def _record(self, metrics: dict[str, np.ndarray], events: list[str], dropped: np.ndarray) -> None:
         for r, (state, log) in enumerate(zip(self.states, self.logs, strict=True)):
-            row = metrics_row(state, _run_metrics(metrics, r), self.alphas[r, state.phase], events[r], dropped[r])
+            body = self._body(r, state.phase)
+            row = metrics_row(state, _run_metrics(metrics, r), body, events[r], dropped[r], self.schemas[r])
             state.rows.append(row)
             log.append(row)
         self._show()
@@ -281,7 +317,19 @@ class Training:
                     save_checkpoint(run.directory / CHECKPOINT_FILE, single, key, [state], owner([run], run.config))
                 finish_run_directory(run.directory, state, repertoire, self.task, run.config, run.schedule)
             seconds = time.perf_counter() - started
-            results.append(RunResult(repertoire, state.rows, run.config, self.alphas[r], run.directory, seconds))
+            own = [self.channels.index(channel) for channel in run.schedule.channels]
+            results.append(
+                RunResult(
+                    repertoire,
+                    state.rows,
+                    run.config,
+                    self.alphas[r],
+                    run.directory,
+                    seconds,
+                    self.values[r][:, own],
+                    run.schedule.channels,
+                )
+            )
         run_checkpoints = {run.directory / CHECKPOINT_FILE for run in self.runs if run.directory is not None}
         if newly_finished and self.checkpoint is not None and self.checkpoint not in run_checkpoints:
             for state in self.states:
@@ -321,7 +369,7 @@ def train(
     """Train `runs` together from scratch or from `checkpoint`; return one result per run.
     From the first checkpoint on, a file that cannot be written is a RunError that says the
     last checkpoint is intact."""
-    training = Training(engine, task, runs, config, checkpoint, progress)
+    training = Training(engine, task, runs, config, checkpoint, progress, engine.channels)
     saved = training.load() if resume else None
     with storage_errors(checkpoint) if checkpoint is not None else contextlib.nullcontext():
         training.start(saved)

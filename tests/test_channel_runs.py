@@ -1,0 +1,167 @@
+"""Runs under multi-channel schedules: every channel's value traced (one compilation for any
+values and phases), a one-channel file trained exactly as alpha alone was, metrics.csv and
+the progress bar with a column per channel, sweeps of schedules with different channels, and
+`report` refusing schedules whose final bodies differ."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import smol_dsl
+from smol_dsl.language.channels import GEAR, Channel
+from smol_dsl.results.report import ReportError, load_runs
+from smol_dsl.runner import preset_config, run_experiment, run_sweep
+from smol_dsl.runner.engine import Engine, stack_runs
+from smol_dsl.runner.map_elites import RunStep, cvt_centroids, empty_archive, make_map_elites
+from smol_dsl.runner.progress import ProgressBar
+from smol_dsl.tasks import make_task
+
+SMALL = dict(
+    evaluations=16 * 21,
+    batch_size=16,
+    num_phases=20,
+    num_centroids=32,
+    episode_length=20,
+    hidden_layer_sizes=(8, 8),
+    num_init_cvt_samples=2000,
+)
+
+THREE_CHANNELS = """
+name "three channels"
+channel gear
+  0% .. 90%: random 0.6 .. 1.4 every 5%
+  90% .. 100%: tail
+channel mass
+  0% .. 90%: linear 0.5 -> 1
+  90% .. 100%: tail
+channel friction
+  0% .. 90%: linear 2 -> 1
+  90% .. 100%: tail
+"""
+
+
+def small_config(**overrides):
+    return preset_config("walker2d", "quick", **{**SMALL, **overrides})
+
+
+@pytest.fixture(scope="module")
+def task():
+    return make_task("walker2d", episode_length=SMALL["episode_length"], hidden_layer_sizes=SMALL["hidden_layer_sizes"])
+
+
+@pytest.fixture(scope="module")
+def three_channel_run(task, tmp_path_factory):
+    out = tmp_path_factory.mktemp("channels") / "three"
+    return run_experiment(task, smol_dsl.parse(THREE_CHANNELS), small_config(), out_dir=out)
+
+
+def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_channel_run, task):
+    schedule = smol_dsl.parse(THREE_CHANNELS)
+    assert three_channel_run.channels == (GEAR, Channel("mass"), Channel("friction"))
+    values = three_channel_run.values
+    assert values.shape == (SMALL["num_phases"], 3)
+    assert len({tuple(row) for row in values}) > 10  # the body changes from phase to phase
+    from smol_dsl.runner.engine import shared_engine
+
+    engine = shared_engine(task, three_channel_run.config, tuple(jax.local_devices()), 1, 1, schedule.channels)
+    programs = engine._step._cache_size(), engine._reevaluate_chunk._cache_size()
+    assert programs[0] >= 1 and programs[1] == 1  # (the initial population's step may be its own program)
+    # another run of these channels, with 4 phases of other values and another seed: no new program
+    again = run_experiment(task, schedule, small_config(num_phases=4, seed=9))
+    assert not np.array_equal(again.values, values[:4])
+    assert (engine._step._cache_size(), engine._reevaluate_chunk._cache_size()) == programs
+
+
+def test_metrics_csv_has_a_column_per_channel(three_channel_run):
+    with open(three_channel_run.out_dir / "metrics.csv", newline="") as file:
+        rows = list(csv.DictReader(file))
+    header = list(rows[0])
+    assert header[:5] == ["generation", "phase", "alpha", "mass", "friction"]
+    values = three_channel_run.values
+    for row in rows:
+        phase = int(row["phase"])
+        assert [float(row["alpha"]), float(row["mass"]), float(row["friction"])] == pytest.approx(
+            values[phase].tolist(), rel=1e-7
+        )
+    certificate = json.loads((three_channel_run.out_dir / "certificate.json").read_text())
+    assert set(certificate["channels"]) == {"gear", "mass", "friction"}
+    text = (three_channel_run.out_dir / "certificate.txt").read_text()
+    assert "channel mass" in text and "channel friction" in text
+
+
+def test_progress_bar_shows_every_channel(three_channel_run, capsys):
+    bar = ProgressBar(three_channel_run.config)
+    bar.update(three_channel_run.metrics[-1], three_channel_run.config.generations)
+    bar.close()
+    shown = capsys.readouterr().err
+    assert "alpha 1.000 mass 1.000 friction 1.000" in shown
+
+
+def test_a_one_channel_file_trains_exactly_as_alpha_alone(task):
+    """The engine's body array (alpha,) scores bit for bit as the scalar alpha of
+    `scale_gear` did before channels existed: same archives after generations and a
+    re-evaluation."""
+    centroids = cvt_centroids(32, task.descriptor_low, task.descriptor_high, 2000, jax.random.key(1))
+    start = task.episode_start(0)
+    engine = Engine(task, batch_size=16, iso_sigma=0.005, line_sigma=0.05, devices=jax.local_devices()[:1])
+    old = RunStep(make_map_elites(16, task.qd_offset, 0.005, 0.05), task.init_policies, task.score, 16)
+    old_generation = jax.jit(old.generation)
+
+    archives = engine.empty_archives(centroids[None])
+    archive = empty_archive(task.init_policies(jax.random.key(0), 1), centroids)
+    key = jax.random.key(2)
+    for alpha in (0.7, 1.4, 1.0):
+        key, subkey = jax.random.split(key)
+        archives, *_ = engine.step(
+            archives, engine.put(jnp.full((1, 1), alpha, jnp.float32)), engine.put(stack_runs([start])), subkey[None]
+        )
+        archive, *_ = old_generation(archive, jnp.float32(alpha), start, subkey)
+        np.testing.assert_array_equal(np.asarray(archives.fitnesses[0]), np.asarray(archive.fitnesses))
+        np.testing.assert_array_equal(np.asarray(archives.descriptors[0]), np.asarray(archive.descriptors))
+
+
+@pytest.fixture(scope="module")
+def mixed_sweep(tmp_path_factory):
+    """vanilla (gear only), growth (gear and mass) and leg-damage (a damaged final left leg)
+    trained together: the program's body is the union of their channels."""
+    out = tmp_path_factory.mktemp("mixed") / "sweep"
+    schedules = [smol_dsl.load(name) for name in ("vanilla", "growth", "leg-damage")]
+    config = small_config(num_phases=10, evaluations=16 * 13)
+    return out, config, run_sweep("walker2d", schedules, [0], config, out_dir=out)
+
+
+def test_a_sweep_trains_schedules_of_different_channels_together(mixed_sweep):
+    _, config, results = mixed_sweep
+    vanilla, growth, damage = results
+    assert vanilla.channels == (GEAR,)
+    assert set(growth.channels) == {GEAR, Channel("mass")}
+    assert damage.channels == (Channel("gear", ("left_leg",)),)
+    headers = {}
+    for result in results:
+        with open(result.out_dir / "metrics.csv", newline="") as file:
+            headers[result.out_dir.name] = next(csv.reader(file))
+    assert "mass" not in headers["walker2d-vanilla-seed0"]
+    assert "mass" in headers["walker2d-growth-seed0"]
+    assert "gear[left_leg]" in headers["walker2d-leg-damage-seed0"]
+    final = smol_dsl.load("leg-damage").final_body[damage.channels[0]]
+    assert damage.metrics[-1]["gear[left_leg]"] == pytest.approx(final)
+    # vanilla's run in the mixed program follows the same algorithm as alone (mass 1 is the standard body)
+    alone = run_experiment("walker2d", smol_dsl.load("vanilla"), config)
+    np.testing.assert_array_equal(vanilla.alphas, alone.alphas)
+    a, b = np.asarray(vanilla.repertoire.fitnesses), np.asarray(alone.repertoire.fitnesses)
+    np.testing.assert_array_equal(a > -np.inf, b > -np.inf)
+    np.testing.assert_allclose(a, b, rtol=1e-5)
+
+
+def test_report_refuses_schedules_whose_final_bodies_differ(mixed_sweep):
+    out, _, results = mixed_sweep
+    with pytest.raises(ReportError, match=r"channel gear\[left_leg\] ends at 0\.5 in Leg damage .* and at 1 in"):
+        load_runs([out])
+    same_body = [result.out_dir for result in results if "leg-damage" not in result.out_dir.name]
+    assert list(load_runs(same_body)) == ["Vanilla MAP-Elites", "Growth"]
