@@ -30,6 +30,10 @@ MAX_NESTING = 100
 """Deepest expression: brackets, calls, and every operator of a chain (`a + b + c` is 2) count."""
 
 
+FIRST_LINES = ("", "continuous\n", "\ncontinuous\n")
+"""What goes before the examples of channel and final lines: a parser state includes the depth
+of its stack, which differs on the first statement, on later ones, and after leading blank lines."""
+
 CHANNEL_LINE_HINT = (
     "a channel line is `channel KIND` or `channel KIND[TARGET, ...]`, e.g. `channel mass` or "
     "`channel gear[left_leg]`; the kinds are " + ", ".join(CHANNEL_KINDS)
@@ -61,19 +65,23 @@ def _example_hints() -> dict[str, list[str]]:
             "let 1 = 2",
         ],
         CHANNEL_LINE_HINT: [
-            "channel",
-            "channel 1",
-            "channel gear left_leg",
-            "channel gear[left_leg",
-            "channel gear[left_leg\n",
-            "channel gear[left_leg,]",
-            "channel gear[left_leg right_leg]",
-            "channel gear[1]",
-            "channel gear(left_leg)",
+            first + line
+            for first in FIRST_LINES
+            for line in (
+                "channel",
+                "channel\n",
+                "channel 1",
+                "channel gear left_leg",
+                "channel gear[left_leg",
+                "channel gear[left_leg\n",
+                "channel gear[left_leg,]",
+                "channel gear[left_leg right_leg]",
+                "channel gear[1]",
+                "channel gear(left_leg)",
+            )
         ],
         "`final` gives the channel's value over its tail, e.g. `final 0.5`": [
-            "final",
-            "final\n",
+            first + line for first in FIRST_LINES for line in ("final", "final\n")
         ],
         'strings are written in double quotes, e.g. `name "SMOL"`': [
             "name SMOL",
