@@ -197,7 +197,7 @@ def test_the_registry_and_run_settings_import_no_jax_or_brax():
 
 QUIET_PROBE = """
 from smol_dsl.tasks import make_task
-for name in ("walker2d", "halfcheetah", "ant_omni"):
+for name in ("walker2d", "halfcheetah", "ant_omni", "hopper", "ant_uni"):
     make_task(name, episode_length=5, hidden_layer_sizes=(4,))
 print("built")
 """
