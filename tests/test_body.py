@@ -11,7 +11,7 @@ import pytest
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.tasks import TASK_NAMES, make_task, task_spec
 from smol_dsl.tasks.base import deterministic_init_state, scale_gear, with_sys
-from smol_dsl.tasks.body import modulation
+from smol_dsl.tasks.body import mass_is_inert, modulation
 
 EPISODE = 50  # the episodes of conftest's walker and cheetah
 BATCH = 8
@@ -94,7 +94,8 @@ def left_leg_gear_times(k):
 
 
 def test_every_task_body_plan_names_its_brax_sys():
-    """Actuator i is named by the joint it drives; links follow sys.link_names (names Brax left empty excepted)."""
+    """Actuator i is named by the joint it drives; links follow sys.link_names (names Brax left
+    empty excepted); the spec's inert kinds are those Brax's spring pipeline ignores."""
     assert len(TASK_NAMES) >= 5
     for name in TASK_NAMES:  # the bundled tasks: each has a body plan
         plan = task_spec(name).body
@@ -102,6 +103,7 @@ def test_every_task_body_plan_names_its_brax_sys():
         model = sys.mj_model
         driven = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.actuator_trnid[:, 0])
         assert plan.actuators == driven, name
+        assert task_spec(name).inert_kinds == (("mass",) if mass_is_inert(sys, "spring") else ()), name
         assert sys.actuator.gear.shape == (len(plan.actuators),)
         assert len(plan.links) == len(sys.link_names) == sys.link.inertia.mass.shape[0], name
         for ours, brax in zip(plan.links, sys.link_names, strict=True):
