@@ -10,6 +10,11 @@ monotonicity declarations are true. All of it is computed here, independently of
 (a gap, an overlap, a missing or short tail, alpha <= 0, alpha outside the declared bounds, a
 false monotone or continuity claim, an unknown name, bad syntax, ...), with the line the error
 must point at.
+
+`multi_channel_schedules()` draws a `MultiChannelSpec`: a file of several channels (random
+kinds, targets and final values), each channel's section a `ScheduleSpec` whose tail is its
+final value; `invalid_multi_channel_schedules()` breaks one rule of one channel, or of a
+`channel` or `final` line.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ BELL_WIDTHS = (None, Fraction(1, 200), Fraction(1, 100), Fraction(1, 40), Fracti
 
 KEYWORDS = frozenset(
     "name description let bounds extinction continuous constant linear bell at width random every expr tail "
-    "increasing decreasing".split()
+    "increasing decreasing channel final".split()
 )
 BUILTINS = frozenset("exp log sqrt sin cos tanh abs min max pi e t u".split())
 RESERVED = KEYWORDS | BUILTINS
@@ -73,6 +78,18 @@ EASINGS: dict[str, tuple[str, Callable[[float], float]]] = {
     "tanh": ("tanh(3 * u) / tanh(3)", lambda x: math.tanh(3 * x) / math.tanh(3)),
     "exp": ("(exp(-2 * u) - 1) / (exp(-2) - 1)", lambda x: math.expm1(-2 * x) / math.expm1(-2)),
 }
+
+# Shapes identically equal to a final value other than 1 ({one}), for the tail of a channel with `final`.
+FINAL_SHAPES = (
+    "tail",
+    "tail",
+    "constant {one}",
+    "linear {one} -> {one}",
+    "random {one} .. {one} every 5%",
+    "expr {one}",
+    "expr u - u + {one}",
+    "expr {one_wrapped} * (sin(t)**2 + cos(t)**2)",
+)
 
 # ----------------------------------------------------------------------------- number text
 
@@ -228,6 +245,7 @@ class ScheduleSpec:
     continuous: bool = False
     layout: Layout = Layout()
     extra_lines: tuple[str, ...] = ()  # appended verbatim (invalid variants)
+    final: Fraction = Fraction(1)  # the value of the tail (a channel's `final`)
 
     # -------------------------------------------------------------- rendering
     def render(self) -> tuple[str, dict[str, int]]:
@@ -304,7 +322,7 @@ class ScheduleSpec:
     def tail_start(self) -> Fraction:
         start = Fraction(1)
         for seg in reversed(self.segments):
-            if not seg.is_one:
+            if not seg.low == seg.high == self.final:
                 break
             start = seg.start
         return start
@@ -372,6 +390,7 @@ class _Builder:
         self.draw = draw
         self.let_level = let_level  # out of 10: how often a value is written as a let name
         self.lets: list[Let] = []
+        self.final = Fraction(1)  # the tail's value in the schedule being drawn
 
     # -- values ------------------------------------------------------------
     def alpha(self, low: int = ALPHA_LOW, high: int = ALPHA_HIGH) -> Fraction:
@@ -448,7 +467,7 @@ class _Builder:
             if every is not None:
                 shape += f" every {self.number(every)}"
             allowed = both_ways() if lo == hi else frozenset()
-            ends = Fraction(1) if lo == hi == 1 else None  # a join next to a random draw is a jump
+            ends = lo if lo == hi == self.final else None  # a join next to a random draw is a jump
             seg = self._make(where, shape, lo, hi, allowed, ends, ends, None)
             return replace(seg, random=RandomTruth(lo, hi, step, math.ceil((end - start) / step)))
         assert kind == "expr", kind
@@ -521,13 +540,16 @@ class _Builder:
         )
 
     def one_segment(self, start: Fraction, end: Fraction, shapes: Sequence[str]) -> SegmentSpec:
-        """A segment that is identically alpha = 1 (the tail, or part of it)."""
+        """A segment that is identically the final value, 1 unless drawing a channel with
+        `final` (the tail, or part of it)."""
         mid = (start + end) / 2
-        shape = self.draw(st.sampled_from(shapes)).format(one=self.number(Fraction(1)), mid=self.number(mid))
+        one = self.final
+        shape = self.draw(st.sampled_from(shapes)).format(
+            one=self.number(one), one_wrapped=self.number(one, wrap=True), mid=self.number(mid)
+        )
         kind = shape.split()[0]
-        one = Fraction(1)
         where = dict(start=start, end=end, start_text=self.number(start), end_text=self.number(end), kind=kind)
-        seg = self._make(where, shape, one, one, both_ways(), one, one, lambda t: 1.0)
+        seg = self._make(where, shape, one, one, both_ways(), one, one, lambda t, v=float(one): v)
         if kind == "bell":
             whole = both_ways()
             halves = (PieceTruth(start, mid, one, one, whole), PieceTruth(mid, end, one, one, whole))
@@ -539,6 +561,63 @@ class _Builder:
 
 
 # ----------------------------------------------------------------------------- valid schedules
+
+
+def _schedule_body(
+    draw: Callable,
+    builder: _Builder,
+    *,
+    kinds: dict[str, int] | None,
+    max_body: int,
+    one_shapes: Sequence[str],
+    declare: bool,
+    bounds: bool | None,
+) -> ScheduleSpec:
+    """The segments of one schedule (or channel) ending on `builder.final`, and its true
+    `bounds` and `continuous` directives."""
+    weights = dict(ALL_KINDS if kinds is None else kinds)
+    grid = draw(st.sampled_from(POSITION_DENOMINATORS))
+    tail_at = draw(st.integers(0, grid * 9 // 10))  # the tail starts at tail_at / grid <= 90%
+    n_body = 0 if tail_at == 0 else draw(st.integers(1, min(max_body, tail_at)))
+    cuts = []
+    if n_body > 1:
+        inner = st.integers(1, tail_at - 1)
+        cuts = sorted(draw(st.lists(inner, unique=True, min_size=n_body - 1, max_size=n_body - 1)))
+    edges = [Fraction(k, grid) for k in [0, *cuts, tail_at]]
+    chained = n_body > 0 and draw(st.integers(0, 3)) == 0  # a continuous body ending at the final value
+    segments: list[SegmentSpec] = []
+    previous: Fraction | None = None
+    for i in range(n_body):
+        options = dict(weights)
+        first = last = None
+        if chained:
+            options.pop("random", None)
+            first, last = previous, (builder.final if i == n_body - 1 else None)
+            if first is not None and last is not None and first != last:
+                options.pop("constant", None)
+        kind = draw(_weighted(options or {"linear": 1}))
+        seg = builder.segment(edges[i], edges[i + 1], kind, first=first, last=last)
+        if kind == "bell":
+            weights.pop("bell")
+        segments.append(seg if declare else replace(seg, declared=None))
+        previous = seg.last
+    tail_edges = [edges[-1], Fraction(1)]
+    if grid - tail_at >= 2 and draw(st.booleans()):
+        tail_edges.insert(1, Fraction(draw(st.integers(tail_at + 1, grid - 1)), grid))
+    for start, end in pairwise(tail_edges):
+        seg = builder.one_segment(start, end, one_shapes)
+        segments.append(seg if declare else replace(seg, declared=None))
+    spec = ScheduleSpec(segments=tuple(segments), final=builder.final)
+
+    # Directives, each only where it is true.
+    declared_bounds = None
+    if bounds or (bounds is None and draw(st.booleans())):
+        # Tight bounds only where verification is exact (an enclosure is a hair wider).
+        exact = all(s.kind in EXACT_KINDS for s in segments)
+        lo = spec.low - Fraction(draw(st.integers(0 if exact else 1, 60)), 100)
+        hi = spec.high + Fraction(draw(st.integers(0 if exact else 1, 60)), 100)
+        declared_bounds = (builder.number(lo), builder.number(hi), lo, hi)
+    return replace(spec, bounds=declared_bounds, continuous=spec.truly_continuous and draw(st.booleans()))
 
 
 @st.composite
@@ -556,49 +635,10 @@ def valid_schedules(
     `kinds` weighs the segment kinds of the body (at most one bell per schedule); `declare`
     allows monotonicity declarations; `bounds` forces (True) or forbids (False) a `bounds` line.
     """
-    weights = dict(ALL_KINDS if kinds is None else kinds)
     builder = _Builder(draw, draw(st.sampled_from((0, 0, 3))))
-    grid = draw(st.sampled_from(POSITION_DENOMINATORS))
-    tail_at = draw(st.integers(0, grid * 9 // 10))  # the tail starts at tail_at / grid <= 90%
-    n_body = 0 if tail_at == 0 else draw(st.integers(1, min(max_body, tail_at)))
-    cuts = []
-    if n_body > 1:
-        inner = st.integers(1, tail_at - 1)
-        cuts = sorted(draw(st.lists(inner, unique=True, min_size=n_body - 1, max_size=n_body - 1)))
-    edges = [Fraction(k, grid) for k in [0, *cuts, tail_at]]
-    chained = n_body > 0 and draw(st.integers(0, 3)) == 0  # a continuous body ending at 1
-    segments: list[SegmentSpec] = []
-    previous: Fraction | None = None
-    for i in range(n_body):
-        options = dict(weights)
-        first = last = None
-        if chained:
-            options.pop("random", None)
-            first, last = previous, (Fraction(1) if i == n_body - 1 else None)
-            if first is not None and last is not None and first != last:
-                options.pop("constant", None)
-        kind = draw(_weighted(options or {"linear": 1}))
-        seg = builder.segment(edges[i], edges[i + 1], kind, first=first, last=last)
-        if kind == "bell":
-            weights.pop("bell")
-        segments.append(seg if declare else replace(seg, declared=None))
-        previous = seg.last
-    tail_edges = [edges[-1], Fraction(1)]
-    if grid - tail_at >= 2 and draw(st.booleans()):
-        tail_edges.insert(1, Fraction(draw(st.integers(tail_at + 1, grid - 1)), grid))
-    for start, end in pairwise(tail_edges):
-        seg = builder.one_segment(start, end, one_shapes)
-        segments.append(seg if declare else replace(seg, declared=None))
-    spec = ScheduleSpec(segments=tuple(segments))
-
-    # Directives, each only where it is true.
-    declared_bounds = None
-    if bounds or (bounds is None and draw(st.booleans())):
-        # Tight bounds only where verification is exact (an enclosure is a hair wider).
-        exact = all(s.kind in EXACT_KINDS for s in segments)
-        lo = spec.low - Fraction(draw(st.integers(0 if exact else 1, 60)), 100)
-        hi = spec.high + Fraction(draw(st.integers(0 if exact else 1, 60)), 100)
-        declared_bounds = (builder.number(lo), builder.number(hi), lo, hi)
+    spec = _schedule_body(
+        draw, builder, kinds=kinds, max_body=max_body, one_shapes=one_shapes, declare=declare, bounds=bounds
+    )
     extinction = None
     if draw(st.integers(0, 3)) == 0:
         p = Fraction(draw(st.integers(0, 100)), 100)
@@ -618,9 +658,7 @@ def valid_schedules(
         lets=tuple(builder.lets),
         name=draw(st.none() | free_text),
         description=draw(st.none() | free_text),
-        bounds=declared_bounds,
         extinction=extinction,
-        continuous=spec.truly_continuous and draw(st.booleans()),
         layout=layout,
     )
 
@@ -652,6 +690,8 @@ class InvalidCase:
     rule: str
     line: int | None  # the line the error must point at
     message: str | None  # words the error message must contain
+    spec: ScheduleSpec | None = field(default=None, repr=False)  # the broken schedule, where a spec renders it
+    key: str | None = None  # the statement of `spec` the error must point at
 
 
 def _small_step(limit: Fraction) -> Fraction:
@@ -661,7 +701,7 @@ def _small_step(limit: Fraction) -> Fraction:
 
 def _case(spec: ScheduleSpec, rule: str, key: str, message: str | None) -> InvalidCase:
     text, where = spec.render()
-    return InvalidCase(text, rule, where[key], message)
+    return InvalidCase(text, rule, where[key], message, spec, key)
 
 
 def _break_gap(draw, spec: ScheduleSpec) -> InvalidCase:
@@ -690,9 +730,9 @@ def _break_overlap(draw, spec: ScheduleSpec) -> InvalidCase | None:
 
 
 def _not_one(draw, spec: ScheduleSpec) -> Fraction | None:
-    """A positive alpha other than 1, inside the declared bounds if there are any."""
+    """A positive alpha other than the final value (1), inside the declared bounds if there are any."""
     lo, hi = (Fraction(1, 2), Fraction(2)) if spec.bounds is None else spec.bounds[2:]
-    options = [Fraction(k, 100) for k in range(30, 201) if lo <= Fraction(k, 100) <= hi and k != 100]
+    options = [Fraction(k, 100) for k in range(30, 201) if lo <= Fraction(k, 100) <= hi and k != spec.final * 100]
     return draw(st.sampled_from(options)) if options else None
 
 
@@ -718,7 +758,7 @@ def _break_short_tail(draw, spec: ScheduleSpec) -> InvalidCase | None:
         return None
     x = Fraction(draw(st.integers(901, 999)), 1000)  # the tail would start after 90%
     i = next(i for i, s in enumerate(spec.segments) if s.start == spec.tail_start)
-    tail = SegmentSpec(x, Fraction(1), position_text(x), "100%", "tail", "tail", Fraction(1), Fraction(1), both_ways())
+    tail = SegmentSpec(x, Fraction(1), position_text(x), "100%", "tail", "tail", spec.final, spec.final, both_ways())
     segs = (*spec.segments[:i], _constant(spec.tail_start, x, v), tail)
     return _case(replace(spec, segments=segs, continuous=False), "short tail", f"segment {i + 1}", "final 10%")
 
@@ -953,3 +993,249 @@ def invalid_schedules(draw: Callable, *, kinds: dict[str, int] | None = None) ->
         if case is not None:
             return case
         rules.remove(rule)
+
+
+# ----------------------------------------------------------------------------- multi-channel schedules
+
+CHANNEL_KINDS = ("gear", "mass", "friction", "gravity")
+TARGETED_KINDS = frozenset({"gear", "mass"})  # friction and gravity take no targets
+FINALS = (Fraction(1), Fraction(1), Fraction(1, 2), Fraction(3, 4), Fraction(5, 4), Fraction(33, 100))
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One channel's section: its kind and targets, how its `channel` line is written, its
+    final value (and how, if declared), and its schedule (a `ScheduleSpec` ending on `final`)."""
+
+    kind: str
+    targets: tuple[str, ...]
+    header: str  # the `channel` line as written, e.g. "channel mass[ torso,thigh ]"
+    final_text: str | None  # the value of its `final` line; None: no such line (final 1)
+    body: ScheduleSpec
+    directive_order: tuple[str, ...] = ("final", "bounds", "continuous")
+
+    @property
+    def name(self) -> str:
+        """The canonical name: `gear`, `mass[torso,thigh]`."""
+        return f"{self.kind}[{','.join(self.targets)}]" if self.targets else self.kind
+
+    @property
+    def final(self) -> Fraction:
+        return self.body.final
+
+    def same_channel(self, other: ChannelSpec) -> bool:
+        return self.kind == other.kind and set(self.targets) == set(other.targets)
+
+
+@dataclass(frozen=True)
+class MultiChannelSpec:
+    """A file of several channels, with the truth of each (see `ChannelSpec`).
+
+    With `implicit_gear`, the first channel (plain gear) is written without a `channel` line,
+    as a file of one channel is. Lets are global: they are written at the top, or inside the
+    first section (`lets_inside`)."""
+
+    channels: tuple[ChannelSpec, ...]
+    lets: tuple[Let, ...] = ()
+    name: str | None = None
+    extinction: tuple[str, Fraction] | None = None
+    implicit_gear: bool = False
+    indent: str = ""
+    newline: str = "\n"
+    lets_inside: bool = False
+    extra_lines: tuple[str, ...] = ()  # appended verbatim (invalid variants)
+
+    def render(self) -> tuple[str, dict[str, int]]:
+        """The text, and the 1-based line of each statement: "0/channel", "1/segment 2", "1/final", ..."""
+        lines: list[str] = []
+        where: dict[str, int] = {}
+
+        def emit(key: str, line: str) -> None:
+            lines.append(line)
+            where[key] = len(lines)
+
+        if self.name is not None:
+            emit("name", f'name "{self.name}"')
+        if self.extinction is not None:
+            emit("extinction", f"extinction {self.extinction[0]}")
+        if not self.lets_inside:
+            for let in self.lets:
+                emit(f"let {let.name}", f"let {let.name} = {let.text}")
+        for i, channel in enumerate(self.channels):
+            if not (i == 0 and self.implicit_gear):
+                emit(f"{i}/channel", channel.header)
+            if i == 0 and self.lets_inside:
+                for let in self.lets:
+                    emit(f"let {let.name}", f"{self.indent}let {let.name} = {let.text}")
+            body = channel.body
+            for directive in channel.directive_order:
+                if directive == "final" and channel.final_text is not None:
+                    emit(f"{i}/final", f"{self.indent}final {channel.final_text}")
+                elif directive == "bounds" and body.bounds is not None:
+                    emit(f"{i}/bounds", f"{self.indent}bounds {body.bounds[0]} .. {body.bounds[1]}")
+                elif directive == "continuous" and body.continuous:
+                    emit(f"{i}/continuous", f"{self.indent}continuous")
+            for j, segment in enumerate(body.segments):
+                emit(f"{i}/segment {j}", self.indent + body.segment_line(segment))
+        for k, extra in enumerate(self.extra_lines):
+            emit(f"extra {k}", extra)
+        return self.newline.join(lines) + self.newline, where
+
+    @property
+    def text(self) -> str:
+        return self.render()[0]
+
+    @property
+    def tail_start(self) -> Fraction:
+        """Where every channel is at its final value for good."""
+        return max(channel.body.tail_start for channel in self.channels)
+
+    def with_body(self, index: int, body: ScheduleSpec) -> MultiChannelSpec:
+        channels = list(self.channels)
+        channels[index] = replace(channels[index], body=body)
+        return replace(self, channels=tuple(channels))
+
+    def reordered(self, order: Sequence[int]) -> MultiChannelSpec:
+        """The same channels declared in another order (each with its `channel` line)."""
+        return replace(self, channels=tuple(self.channels[i] for i in order), implicit_gear=False)
+
+
+target_names = st.sampled_from(("left_leg", "right_leg", "torso", "thigh", "hip_1", "knee", "foot_left_joint"))
+
+
+@st.composite
+def channel_headers(draw: Callable, kind: str, targets: tuple[str, ...]) -> str:
+    """A `channel` line for the channel, with random spacing."""
+    if not targets:
+        return draw(st.sampled_from(("channel ", "channel  ", "channel\t"))) + kind
+    space = st.sampled_from(("", "", " "))
+    inside = ",".join(draw(space) + target + draw(space) for target in targets)
+    return f"channel {kind}{draw(space)}[{inside}]"
+
+
+@st.composite
+def multi_channel_schedules(
+    draw: Callable, *, kinds: dict[str, int] | None = None, max_channels: int = 3, max_body: int = 2
+) -> MultiChannelSpec:
+    """A valid file of one to `max_channels` distinct channels (random kinds, targets, finals)."""
+    builder = _Builder(draw, draw(st.sampled_from((0, 0, 3))))
+    count = draw(st.integers(1, max_channels))
+    channels: list[ChannelSpec] = []
+    while len(channels) < count:
+        kind = draw(st.sampled_from(CHANNEL_KINDS))
+        targets: tuple[str, ...] = ()
+        if kind in TARGETED_KINDS and draw(st.booleans()):
+            targets = tuple(draw(st.lists(target_names, min_size=1, max_size=3, unique=True)))
+        final = draw(st.sampled_from(FINALS))
+        final_text = None if final == 1 and draw(st.booleans()) else builder.number(final)
+        builder.final = final
+        body = _schedule_body(
+            draw,
+            builder,
+            kinds=CHEAP_KINDS if kinds is None else kinds,
+            max_body=max_body,
+            one_shapes=ONE_SHAPES if final == 1 else FINAL_SHAPES,
+            declare=True,
+            bounds=None,
+        )
+        header = draw(channel_headers(kind, targets))
+        order = tuple(draw(st.permutations(("final", "bounds", "continuous"))))
+        channel = ChannelSpec(kind, targets, header, final_text, body, order)
+        if not any(channel.same_channel(other) for other in channels):
+            channels.append(channel)
+    implicit = channels[0].kind == "gear" and not channels[0].targets and draw(st.booleans())
+    extinction = None
+    if draw(st.integers(0, 3)) == 0:
+        p = Fraction(draw(st.integers(0, 100)), 100)
+        extinction = (builder.number(p, allow_let=False), p)
+    return MultiChannelSpec(
+        channels=tuple(channels),
+        lets=tuple(builder.lets),
+        name=draw(st.none() | free_text),
+        extinction=extinction,
+        implicit_gear=implicit,
+        indent=draw(st.sampled_from(("", "  ", "\t"))),
+        newline=draw(st.sampled_from(("\n", "\r\n"))),
+        lets_inside=draw(st.booleans()),
+    )
+
+
+BODY_BREAKS = (
+    "gap",
+    "overlap",
+    "missing tail",
+    "short tail",
+    "alpha <= 0",
+    "out of bounds",
+    "false monotone",
+    "false continuous",
+)
+CHANNEL_BREAKS = (
+    "unknown kind",
+    "targets of friction",
+    "empty targets",
+    "repeated target",
+    "channel twice",
+    "final not positive",
+    "final twice",
+)
+
+
+def _break_channel_line(draw: Callable, multi: MultiChannelSpec, how: str) -> InvalidCase:
+    """A broken `channel` or `final` line in a valid multi-channel file."""
+    i = draw(st.integers(0, len(multi.channels) - 1))
+    channel = multi.channels[i]
+    key, message = f"{i}/channel", None
+    if how == "unknown kind":
+        wrong = draw(st.sampled_from(("strength", "gears", "Mass", "gravit", "density")))
+        header = f"channel {wrong}" + (f"[{','.join(channel.targets)}]" if channel.targets else "")
+        channel, message = replace(channel, header=header), "unknown channel"
+    elif how == "targets of friction":
+        kind = draw(st.sampled_from(("friction", "gravity")))
+        channel, message = replace(channel, kind=kind, targets=("a",), header=f"channel {kind}[a]"), "takes no targets"
+    elif how == "empty targets":
+        kind = draw(st.sampled_from(("gear", "mass")))
+        channel, message = replace(channel, header=f"channel {kind}[]"), "names no"
+    elif how == "repeated target":
+        target = draw(target_names)
+        kind = draw(st.sampled_from(("gear", "mass")))
+        channel, message = replace(channel, header=f"channel {kind}[{target}, {target}]"), "named twice"
+    elif how == "channel twice":
+        copy = replace(channel, header=f"channel {channel.name}")
+        broken = replace(multi, channels=(*multi.channels, copy), implicit_gear=False)
+        text, where = broken.render()
+        return InvalidCase(text, "channel: channel twice", where[f"{len(multi.channels)}/channel"], "given twice")
+    elif how == "final not positive":
+        value = draw(st.sampled_from(("0", "-0.5", "1 - 1")))
+        channel, key, message = replace(channel, final_text=value), f"{i}/final", "must be above 0"
+    else:  # final twice
+        order = (*channel.directive_order, "final")
+        text = replace(channel, final_text=channel.final_text or "1", directive_order=order)
+        broken = replace(multi, implicit_gear=False).reordered(range(len(multi.channels)))
+        broken = replace(broken, channels=tuple(text if k == i else c for k, c in enumerate(broken.channels)))
+        lines, where = broken.render()
+        return InvalidCase(lines, "channel: final twice", where[f"{i}/final"], "given twice")
+    broken = replace(multi, implicit_gear=False)
+    broken = replace(broken, channels=tuple(channel if k == i else c for k, c in enumerate(multi.channels)))
+    text, where = broken.render()
+    return InvalidCase(text, f"channel: {how}", where[key], message)
+
+
+@st.composite
+def invalid_multi_channel_schedules(draw: Callable) -> InvalidCase:
+    """A multi-channel file that breaks exactly one rule: of one channel's schedule (in its
+    section), or of a `channel` or `final` line."""
+    multi = draw(multi_channel_schedules(kinds=CHEAP_KINDS))
+    if draw(st.integers(0, 2)) == 0:
+        return _break_channel_line(draw, multi, draw(st.sampled_from(CHANNEL_BREAKS)))
+    i = draw(st.integers(0, len(multi.channels) - 1))
+    rules = list(BODY_BREAKS)
+    while True:
+        rule = draw(st.sampled_from(rules))
+        case = BREAKERS[rule](draw, multi.channels[i].body)
+        if case is not None:
+            break
+        rules.remove(rule)
+    assert case.spec is not None and case.key is not None
+    text, where = multi.with_body(i, case.spec).render()
+    return InvalidCase(text, f"channel {i}: {case.rule}", where[f"{i}/{case.key}"], case.message)

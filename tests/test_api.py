@@ -131,9 +131,12 @@ def test_optax_style_schedule(library):
 
 def test_certificate_is_json_ready(library):
     for schedule in library.values():
-        data = schedule.certificate.to_dict()
-        assert json.loads(json.dumps(data)) == data
-        assert math.isclose(data["tail_start"], float(schedule.tail_start))
+        for channel, certificate in schedule.certificates.items():
+            data = certificate.to_dict()
+            assert json.loads(json.dumps(data)) == data
+            assert data["channel"] == channel.name
+            assert math.isclose(data["tail_start"], float(schedule.curve(channel).tail_start))
+        assert float(schedule.tail_start) == max(c.tail_start for c in schedule.certificates.values())
 
 
 def test_symbolic_form_is_a_piecewise_of_t(library):

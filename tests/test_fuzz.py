@@ -1,4 +1,5 @@
-"""Fuzzing: arbitrary text and bytes, and mutations of the bundled schedules (and examples/).
+"""Fuzzing: arbitrary text and bytes, and mutations of the bundled schedules (and examples/),
+multi-channel ones included.
 
 Whatever the input, `smol_dsl.parse` / `smol_dsl.load` either return a `Schedule` or raise a
 `ScheduleError` that names the file, the line and column (where it has a place) and ends with a
@@ -19,6 +20,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from strategies import multi_channel_schedules
 
 import smol_dsl
 from smol_dsl.language.library import library_dir
@@ -37,7 +39,7 @@ COMMON = dict(
 
 KEYWORDS = (
     "name description let bounds extinction continuous constant linear bell at width random every expr tail "
-    "increasing decreasing exp log sqrt sin cos tanh abs min max pi e t u"
+    "increasing decreasing exp log sqrt sin cos tanh abs min max pi e t u channel final gear mass friction gravity"
 ).split()
 TOKENS = (
     *KEYWORDS,
@@ -49,6 +51,12 @@ TOKENS = (
     "100%",
     "0% .. 90%:",
     "90% .. 100%: tail",
+    "channel mass\n",
+    "channel gear[left_leg]\n",
+    "channel gravity[a]",
+    "channel gear[a, a]",
+    "final 0.5\n",
+    "left_leg",
     '"SMOL"',
     " ",
     "  ",
@@ -177,17 +185,23 @@ def check_error(error: smol_dsl.ScheduleError, text: str | None, path: str) -> N
 
 
 def check_schedule(schedule: smol_dsl.Schedule) -> None:
-    """A schedule that was accepted evaluates to finite, positive alpha (at every phase and on a
-    dense grid of t, in float32) with a tail of exactly 1: no third outcome."""
-    cert = schedule.certificate
-    assert 0 < cert.minimum <= cert.maximum
+    """A schedule that was accepted evaluates, in every channel, to finite, positive values (at
+    every phase and on a dense grid of t, in float32) with a tail of exactly its final value:
+    no third outcome."""
     assert schedule.tail_start <= 0.9
-    phases = np.asarray(schedule.phase_alphas(20))
-    assert np.all(np.isfinite(phases)) and np.all(phases > 0), phases
     tail = schedule.tail_phases(20)
-    assert tail >= 2 and np.all(phases[20 - tail :] == 1.0), phases
-    dense = np.asarray(schedule.alpha(np.linspace(0.0, 1.0, 4001, dtype=np.float32)))
-    assert np.all(np.isfinite(dense)) and np.all(dense > 0), dense
+    assert tail >= 2
+    values = np.asarray(schedule.checked_phase_values(20))
+    assert values.shape == (20, len(schedule.channels))
+    for column, channel in enumerate(schedule.channels):
+        curve = schedule.curve(channel)
+        cert = schedule.certificates[channel]
+        assert 0 < cert.minimum <= cert.maximum and cert.final == curve.final > 0
+        phases = values[:, column]
+        assert np.all(np.isfinite(phases)) and np.all(phases > 0), phases
+        assert np.all(phases[20 - tail :] == np.float32(curve.final)), phases
+        dense = np.asarray(curve.value(np.linspace(0.0, 1.0, 4001, dtype=np.float32)))
+        assert np.all(np.isfinite(dense)) and np.all(dense > 0), dense
 
 
 def parse_outcome(text: str, path: str = "fuzz.sched") -> smol_dsl.Schedule | None:
@@ -229,6 +243,21 @@ def test_random_text_parses_or_raises_a_located_schedule_error(text):
 def test_mutated_library_files_parse_or_raise_a_located_schedule_error(case):
     name, text = case
     parse_outcome(text, path=name)
+
+
+@st.composite
+def mutated_multi_channel(draw) -> str:
+    """A generated multi-channel file (random channels, targets and finals) with one to three edits."""
+    text = draw(multi_channel_schedules(max_channels=4, max_body=2)).text
+    for _ in range(draw(st.integers(1, 3))):
+        text = draw(mutation(text))
+    return text
+
+
+@settings(max_examples=60, **COMMON)
+@given(mutated_multi_channel())
+def test_mutated_multi_channel_files_parse_or_raise_a_located_schedule_error(text):
+    parse_outcome(text)
 
 
 @pytest.fixture(scope="module")

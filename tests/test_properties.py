@@ -27,14 +27,18 @@ from strategies import (
     EASINGS,
     NO_BELLS,
     ONE_SHAPES,
+    MultiChannelSpec,
     ScheduleSpec,
+    invalid_multi_channel_schedules,
     invalid_schedules,
+    multi_channel_schedules,
     random_segment_schedules,
     valid_schedules,
 )
 from sympy.core.function import AppliedUndef
 
 import smol_dsl
+from smol_dsl import BodyPlan, Channel
 from smol_dsl.language.symbolic import T
 
 RTOL, ATOL = 1e-4, 1e-5  # float32 evaluation against exact values
@@ -496,5 +500,122 @@ def test_invalid_schedules_raise_one_located_schedule_error(case):
     assert f"\nhint: {caught.hint}" in shown
     if case.line is not None:
         assert caught.line == case.line, (case.rule, shown, case.text)
+    if case.message is not None:
+        assert case.message in caught.message, (case.rule, caught.message)
+
+
+# ----------------------------------------------------------------------------- multi-channel schedules
+
+
+def channel_of(spec) -> Channel:
+    return Channel(spec.kind, spec.targets)
+
+
+def random_draws_of(schedule: smol_dsl.Schedule, channel: Channel, key: jax.Array) -> list[np.ndarray | None]:
+    return [None if d is None else np.asarray(d) for d in schedule.curve(channel).draws(key)]
+
+
+@settings(max_examples=12, **COMMON)
+@given(multi_channel_schedules(), seeds, phase_counts)
+def test_every_channel_is_verified_and_evaluated_against_its_truth(multi: MultiChannelSpec, seed: int, n: int):
+    schedule = smol_dsl.parse(multi.text)
+    channels = tuple(channel_of(c) for c in multi.channels)
+    assert schedule.channels == channels
+    assert schedule.final_body == {channel_of(c): float(c.final) for c in multi.channels}
+    assert schedule.tail_start == multi.tail_start
+    assert schedule.extinction == (0.0 if multi.extinction is None else float(multi.extinction[1]))
+    key = key_of(seed)
+    values = np.asarray(schedule.checked_phase_values(n, key))
+    assert values.shape == (n, len(channels)) and values.dtype == np.float32
+    assert np.all(np.isfinite(values)) and np.all(values > 0)
+    for column, (channel, truth) in enumerate(zip(channels, multi.channels)):
+        body = truth.body
+        certificate = schedule.certificates[channel]
+        assert certificate.channel == channel and certificate.final == float(truth.final)
+        assert certificate.minimum == pytest.approx(float(body.low), abs=1e-9)
+        assert certificate.maximum == pytest.approx(float(body.high), abs=1e-9)
+        assert certificate.tail_start == float(body.tail_start)
+        assert f"tail: {channel.quantity} == {float(truth.final):g} from" in str(certificate)
+        curve = schedule.curve(channel)
+        assert curve.tail_start == body.tail_start and curve.final == float(truth.final)
+        # each channel is exactly its final value over its tail, from the first phase wholly in it
+        in_tail = np.asarray([Fraction(k, n) >= body.tail_start for k in range(n)])
+        assert np.all(values[in_tail, column] == np.float32(truth.final)), values[:, column]
+        # and its documented value at every phase start
+        draws = random_draws_of(schedule, channel, key)
+        want = [body.alpha(Fraction(k, n), draws) for k in range(n)]
+        assert close(values[:, column], want), (channel.name, values[:, column], want)
+
+
+@settings(max_examples=10, **COMMON)
+@given(multi_channel_schedules(), st.data(), seeds)
+def test_declaration_order_does_not_change_any_value(multi: MultiChannelSpec, data, seed: int):
+    order = data.draw(st.permutations(range(len(multi.channels))))
+    first = smol_dsl.parse(multi.text)
+    second = smol_dsl.parse(multi.reordered(order).text)
+    assert second.channels == tuple(first.channels[i] for i in order)
+    key = key_of(seed)
+    for n in (10, 64):
+        a = np.asarray(first.phase_values(n, key, first.channels))
+        b = np.asarray(second.phase_values(n, key, first.channels))
+        assert a.tobytes() == b.tobytes()
+    assert first.certificates == second.certificates
+
+
+@settings(max_examples=10, **COMMON)
+@given(valid_schedules(kinds=CHEAP_KINDS), seeds, phase_counts)
+def test_one_channel_files_equal_their_gear_only_form(spec: ScheduleSpec, seed: int, n: int):
+    plain = compile_spec(spec)
+    explicit = smol_dsl.parse("channel gear\n" + spec.text)
+    assert plain.channels == explicit.channels == (smol_dsl.GEAR,)
+    assert str(plain.certificate) == str(explicit.certificate)
+    key = key_of(seed)
+    values = plain.checked_phase_values(n, key)
+    assert values[:, 0].tobytes() == plain.checked_phase_alphas(n, key).tobytes()
+    assert explicit.checked_phase_values(n, key).tobytes() == values.tobytes()
+
+
+@settings(max_examples=10, **COMMON)
+@given(multi_channel_schedules(max_body=1), st.data())
+def test_check_body_accepts_exactly_the_bodies_that_have_every_target(multi: MultiChannelSpec, data):
+    schedule = smol_dsl.parse(multi.text, path="m.sched")
+    actuators = sorted({t for c in multi.channels if c.kind == "gear" for t in c.targets})
+    links = sorted({t for c in multi.channels if c.kind == "mass" for t in c.targets})
+    schedule.check_body(BodyPlan(tuple(actuators), tuple(links)), "toy")
+    targeted = [c for c in multi.channels if c.targets]
+    if not targeted:
+        schedule.check_body(None, "toy")
+        return
+    channel = data.draw(st.sampled_from(targeted))
+    missing = data.draw(st.sampled_from(channel.targets))
+    actuators = [a for a in actuators if a != missing or channel.kind != "gear"]
+    links = [link for link in links if link != missing or channel.kind != "mass"]
+    with pytest.raises(smol_dsl.ScheduleError) as caught:
+        schedule.check_body(BodyPlan(tuple(actuators), tuple(links)), "toy")
+    error = caught.value
+    # the first channel, in declared order, that names a target the body lacks
+    first = next(k for k, c in enumerate(multi.channels) if c.kind == channel.kind and missing in c.targets)
+    assert error.line == multi.render()[1][f"{first}/channel"] and f"`{missing}`" in error.message
+    assert str(error).startswith(f"m.sched:{error.line}:{error.column}: error: task toy has no ")
+    with pytest.raises(smol_dsl.ScheduleError, match="does not list its"):
+        schedule.check_body(None, "toy")
+
+
+@settings(max_examples=40, **COMMON)
+@given(invalid_multi_channel_schedules())
+def test_invalid_multi_channel_files_raise_one_located_schedule_error(case):
+    event(case.rule.partition(":")[0].rstrip("0123456789 "))
+    try:
+        smol_dsl.parse(case.text, path="case.sched")
+    except smol_dsl.ScheduleError as error:
+        caught = error
+    except Exception as error:  # anything else is a bug
+        pytest.fail(f"{case.rule}: {type(error).__name__}: {error}\n{case.text}")
+    else:
+        pytest.fail(f"{case.rule}: accepted\n{case.text}")
+    shown = str(caught)
+    assert shown.startswith(f"case.sched:{caught.line}:{caught.column}: error: "), shown
+    assert caught.hint and f"\nhint: {caught.hint}" in shown
+    assert caught.line == case.line, (case.rule, shown, case.text)
     if case.message is not None:
         assert case.message in caught.message, (case.rule, caught.message)
