@@ -105,7 +105,7 @@ def test_curve_takes_a_channel_or_its_name(three):
 ERRORS = {
     "unknown kind": (
         "channel strenght\n0% .. 100%: tail\n",
-        1, 9, 8, "unknown channel `strenght`", "the channels are gear",
+        1, 9, 8, "unknown channel `strenght`", "the channels are `gear`: the actuators' gear",
     ),
     "did you mean": ("channel gravty\n0% .. 100%: tail\n", 1, 9, 6, "unknown channel", "did you mean `gravity`?"),
     "friction with targets": (

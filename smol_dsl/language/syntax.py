@@ -275,8 +275,8 @@ def _channel_line(kind: Token, targets: tuple[Span, list[Token]] | None, span: S
 
 
 def channel_kinds_text() -> str:
-    """`gear (the actuators' gear (their strength)), mass (...), ...`: the kinds, for hints."""
-    return ", ".join(f"{keyword} ({kind.scales})" for keyword, kind in CHANNEL_KINDS.items())
+    """`` `gear`: the actuators' gear (their strength); `mass`: ... ``: the kinds, for hints."""
+    return "; ".join(f"`{keyword}`: {kind.scales}" for keyword, kind in CHANNEL_KINDS.items())
 
 
 def _same_channel(a: Channel, b: Channel) -> bool:
