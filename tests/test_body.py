@@ -11,7 +11,7 @@ import pytest
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.tasks import TASK_NAMES, make_task, task_spec
 from smol_dsl.tasks.base import deterministic_init_state, scale_gear, with_sys
-from smol_dsl.tasks.body import mass_is_inert, modulation
+from smol_dsl.tasks.body import modulation
 
 EPISODE = 50  # the episodes of conftest's walker and cheetah
 BATCH = 8
@@ -66,13 +66,19 @@ def hand_edited_scores(task, params, edit):
 
 
 def heavier(k):
+    """The body Brax simulates, k times as heavy and as hard to turn, edited by hand: its
+    simulated masses m ** (1 - spring_mass_scale) and inertia diagonals written with scales 0."""
+
     def edit(sys):
+        mass = np.asarray(sys.link.inertia.mass) ** (1 - float(sys.spring_mass_scale)) * k
+        diagonal = np.diagonal(np.asarray(sys.link.inertia.i), axis1=1, axis2=2)
+        diagonal = diagonal ** (1 - float(sys.spring_inertia_scale))
         return sys.tree_replace(
             {
-                "link.inertia.mass": sys.link.inertia.mass * k,
-                "link.inertia.i": sys.link.inertia.i * k,
-                "body_mass": sys.body_mass * k,
-                "body_inertia": sys.body_inertia * k,
+                "link.inertia.mass": jnp.asarray(mass, jnp.float32),
+                "link.inertia.i": jnp.asarray(np.einsum("li,ij->lij", diagonal * k, np.eye(3)), jnp.float32),
+                "spring_mass_scale": 0.0,
+                "spring_inertia_scale": 0.0,
             }
         )
 
@@ -95,7 +101,7 @@ def left_leg_gear_times(k):
 
 def test_every_task_body_plan_names_its_brax_sys():
     """Actuator i is named by the joint it drives; links follow sys.link_names (names Brax left
-    empty excepted); the spec's inert kinds are those Brax's spring pipeline ignores."""
+    empty excepted)."""
     assert len(TASK_NAMES) >= 5
     for name in TASK_NAMES:  # the bundled tasks: each has a body plan
         plan = task_spec(name).body
@@ -103,7 +109,6 @@ def test_every_task_body_plan_names_its_brax_sys():
         model = sys.mj_model
         driven = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.actuator_trnid[:, 0])
         assert plan.actuators == driven, name
-        assert task_spec(name).inert_kinds == (("mass",) if mass_is_inert(sys, "spring") else ()), name
         assert sys.actuator.gear.shape == (len(plan.actuators),)
         assert len(plan.links) == len(sys.link_names) == sys.link.inertia.mass.shape[0], name
         for ours, brax in zip(plan.links, sys.link_names, strict=True):
@@ -186,9 +191,9 @@ def test_factors_of_one_kind_multiply(walker_body):
     np.testing.assert_allclose(
         np.asarray(changed.link.inertia.mass), np.asarray(sys.link.inertia.mass) * links, rtol=1e-6
     )
-    np.testing.assert_allclose(
-        np.asarray(changed.link.inertia.i), np.asarray(sys.link.inertia.i) * links[:, None, None]
-    )
+    # walker2d's spring pipeline simulates unit inertia (spring_inertia_scale 1): now written as such, times the factor
+    assert float(sys.spring_inertia_scale) == 1.0 and float(changed.spring_inertia_scale) == 0.0
+    np.testing.assert_allclose(np.asarray(changed.link.inertia.i), links[:, None, None] * np.eye(3))
     np.testing.assert_allclose(np.asarray(changed.body_mass)[1:], np.asarray(changed.link.inertia.mass), rtol=1e-6)
     diagonal = np.diagonal(np.asarray(changed.link.inertia.i), axis1=1, axis2=2)  # principal axes: i is diagonal
     np.testing.assert_allclose(np.asarray(changed.body_inertia)[1:], diagonal, rtol=1e-6)
@@ -249,10 +254,30 @@ def test_channels_the_body_cannot_take_are_refused(walker):
         modulation(task_spec("walker2d").body, (GEAR,))(make_task("hopper", episode_length=5).env.sys, jnp.ones(1))
 
 
-def test_mass_is_refused_where_the_spring_pipeline_ignores_it():
-    hopper = make_task("hopper", episode_length=5, hidden_layer_sizes=(4,))
+def test_mass_changes_a_body_brax_simulates_with_unit_masses():
+    """Hopper's spring pipeline gives every link mass 1 and unit inertia whatever sys says;
+    the mass channel scales what is simulated, so a heavier hopper moves differently, and at
+    1 the hopper is the plain one."""
+    hopper = make_task("hopper", episode_length=30, hidden_layer_sizes=(8,))
     assert float(hopper.env.sys.spring_mass_scale) == 1.0 == float(hopper.env.sys.spring_inertia_scale)
-    with pytest.raises(ValueError, match="mass cannot change task hopper's body"):
-        hopper.with_channels(["gear", "mass[whole_leg]"])
-    task = hopper.with_channels(["gear[whole_leg]", "friction", "gravity"])
-    assert task.channels == (Channel("gear", ("whole_leg",)), Channel("friction"), Channel("gravity"))
+    body = hopper.with_channels(["gear", "mass[whole_leg]", "friction", "gravity"])
+    params = hopper.init_policies(jax.random.key(11), BATCH)
+    plain = hopper.scoring_fn()(params, jnp.float32(1.0), start(hopper))
+    at_one = body.scoring_fn()(params, jnp.ones(4), start(hopper))
+    for a, b in zip(at_one, plain, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    heavy = body.scoring_fn()(params, jnp.asarray([1.0, 3.0, 1.0, 1.0]), start(hopper))[0]
+    assert np.abs(np.asarray(heavy) - np.asarray(plain[0])).max() > 0.1
+    sys = body.modulate(hopper.env.sys, jnp.asarray([1.0, 3.0, 1.0, 1.0]))
+    np.testing.assert_array_equal(np.asarray(sys.link.inertia.mass), [1.0, 3.0, 3.0, 3.0])  # torso unscheduled
+
+
+def test_a_task_with_its_own_alpha_hook_keeps_it_under_channels(walker):
+    """A task's own `modulate` (here, gear times 2 alpha) still gets plain gear's value."""
+    import dataclasses
+
+    doubled = dataclasses.replace(walker, modulate=lambda sys, alpha: scale_gear(sys, 2 * alpha))
+    body = doubled.with_channels(["gear", "gravity"])
+    sys = body.modulate(walker.env.sys, jnp.asarray([0.5, 0.5]))
+    np.testing.assert_allclose(np.asarray(sys.actuator.gear), np.asarray(walker.env.sys.actuator.gear))
+    np.testing.assert_allclose(np.asarray(sys.gravity), np.asarray(walker.env.sys.gravity) * 0.5)

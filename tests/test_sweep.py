@@ -200,7 +200,7 @@ def test_cli_sweep_killed_then_resumed_equals_uninterrupted(sweep, tmp_path):
     [
         (["sweep", "unicycle", "human"], "unknown task 'unicycle'"),
         (["sweep", "walker2d", "human", "--devices", "64"], "--devices 64: this machine has"),
-        (["sweep", "walker2d", "human", "--phases", "5"], "no phase lies wholly in the alpha = 1 tail"),
+        (["sweep", "walker2d", "human", "--phases", "5"], "no phase lies wholly in the final-body tail"),
         (["sweep", "walker2d", "human", "--seeds", "0"], "must be at least 1"),
     ],
 )

@@ -24,6 +24,7 @@ import matplotlib.colors
 import numpy as np
 from matplotlib.figure import Figure
 
+from smol_dsl.language.channels import GEAR
 from smol_dsl.results.rundir import (
     ARCHIVE_FIGURE,
     METRICS_FIGURE,
@@ -190,21 +191,30 @@ def save_figure(figure: Figure, out: str | Path, *, dpi: int = 150) -> Path:
 
 # ---------------------------------------------------------------------------- a run's figures
 def metrics_figure(rows: Sequence[Mapping[str, Any]], config: RunConfig, schedule: Schedule, title: str) -> Figure:
-    """Max fitness, coverage and QD score over training evaluations, with alpha beside them;
-    a dashed line where alpha becomes 1 for good."""
+    """Max fitness, coverage and QD score over training evaluations, with the body beside
+    them (alpha, and every other scheduled channel's factor); a dashed line where the body
+    becomes the final one for good."""
     figure = Figure(figsize=(11, 3.4), layout="constrained")
-    panels = (*SCORES, "alpha")
-    axes = figure.subplots(1, len(panels))
+    axes = figure.subplots(1, len(SCORES) + 1)
     evaluations = np.asarray([r["evaluations"] for r in rows], dtype=float)
     first_tail_phase = config.num_phases - schedule.tail_phases(config.num_phases)
-    alpha_one = alpha_one_evaluations(rows, first_tail_phase)
-    for ax, name in zip(axes, panels, strict=True):
-        values = np.asarray([r[name] for r in rows], dtype=float)
-        ax.plot(evaluations, values, lw=1.4, drawstyle="steps-post" if name == "alpha" else "default")
-        if alpha_one is not None and 0 < alpha_one:
-            ax.axvline(alpha_one, color="0.3", ls="--", lw=1.0)
+    final_body = alpha_one_evaluations(rows, first_tail_phase)
+    channels = [name for name in rows[0] if name not in METRICS_SCHEMA.names]
+    body = ["alpha", *channels] if GEAR in schedule.channels or not channels else channels
+    for ax, name in zip(axes, (*SCORES, "body"), strict=True):
+        if name == "body":
+            for column in body:
+                values = np.asarray([r[column] for r in rows], dtype=float)
+                ax.plot(evaluations, values, lw=1.4, drawstyle="steps-post", label=column)
+            ax.set_ylabel(METRICS_SCHEMA["alpha"].axis_label if body == ["alpha"] else "factor")
+            if len(body) > 1:
+                ax.legend(fontsize=7)
+        else:
+            ax.plot(evaluations, np.asarray([r[name] for r in rows], dtype=float), lw=1.4)
+            ax.set_ylabel(METRICS_SCHEMA[name].axis_label)
+        if final_body is not None and 0 < final_body:
+            ax.axvline(final_body, color="0.3", ls="--", lw=1.0)
         ax.set_xlabel("evaluations")
-        ax.set_ylabel(METRICS_SCHEMA[name].axis_label)
         ax.grid(alpha=0.25)
     figure.suptitle(title)
     return figure

@@ -406,7 +406,7 @@ def render_report(groups: dict[str, list[RunRecord]], table: PValueTable) -> dic
         what = "main results" if stem == "main-results" else "ablations"
         figures[stem] = results_figure(groups, names, f"{table.task}: {what} (median and IQR over seeds)")
     low, high = descriptor_bounds(table.task)
-    if len(low) == 2:  # each schedule's run with the median final score, side by side
+    if low:  # each schedule's run with the median final score, side by side
         chosen = {name: median_run(runs, table.metric) for name, runs in groups.items()}
         panels = [(name, run.seed, run.final_archive()) for name, run in chosen.items()]
         by = table.metric.replace("_", " ")

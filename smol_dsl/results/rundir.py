@@ -77,8 +77,12 @@ FILES = (
         "the final archive: `genotypes/<parameter path>` (C, ...), `fitnesses` (C,), `descriptors` (C, D), "
         "`centroids` (C, D), `filled` (C,); an empty cell's fitness is −inf",
     ),
-    (METRICS_FIGURE, "max fitness, coverage, QD score and α over training evaluations"),
-    (ARCHIVE_FIGURE, "the final archive as a 2-D map, each CVT cell coloured by its elite's fitness"),
+    (METRICS_FIGURE, "max fitness, coverage, QD score and every scheduled channel's factor over training evaluations"),
+    (
+        ARCHIVE_FIGURE,
+        "the final archive: a 2-D map of the CVT cells coloured by their elites' fitness (1 descriptor: fitness "
+        "along it; more than 2: the best elite over the first two descriptors)",
+    ),
     (LOCK_FILE, "the lock of the process writing the directory: its pid and host"),
 )
 """Every file of a run directory and what it holds, in the order the runner writes them."""

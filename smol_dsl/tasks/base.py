@@ -62,17 +62,18 @@ def with_sys(env: PipelineEnv, sys: System) -> PipelineEnv:
 def start_in_body(start: State, sys: System, standard: System) -> State:
     """An episode start made in the `standard` body, moved into the body `sys`.
 
-    Brax's spring and positional pipelines compute each link's mass
+    Brax's spring and positional pipelines compute each link's simulated mass
     (`mass ** (1 - spring_mass_scale)`) at reset, keep it in the pipeline state and never
     recompute it; every other field of the start is recomputed by `step` (inverse inertia,
-    contacts) or depends on geometry only. Links whose mass `sys` leaves unchanged keep the
-    start's, bit for bit.
+    contacts) or depends on geometry only. Links whose simulated mass `sys` leaves unchanged
+    keep the start's, bit for bit.
     """
     pipeline = start.pipeline_state
     if not hasattr(pipeline, "mass"):  # the generalized and MJX pipelines read sys at each step
         return start
-    masses, standard_masses = sys.link.inertia.mass, standard.link.inertia.mass
-    mass = jnp.where(masses == standard_masses, pipeline.mass, masses ** (1 - sys.spring_mass_scale))
+    simulated = sys.link.inertia.mass ** (1 - sys.spring_mass_scale)
+    standard_simulated = standard.link.inertia.mass ** (1 - standard.spring_mass_scale)
+    mass = jnp.where(simulated == standard_simulated, pipeline.mass, simulated)
     return start.replace(pipeline_state=pipeline.replace(mass=mass))
 
 
@@ -135,16 +136,14 @@ class Task:
         key = tuple(Channel.parse(c) if isinstance(c, str) else c for c in channels)
         cached = self._channel_tasks.get(key)
         if cached is None:
-            from smol_dsl.tasks.body import mass_is_inert, modulation
+            from smol_dsl.tasks.body import modulation
 
             if self.spec.body is None:
                 raise ValueError(f"task {self.name} has no body plan: only alpha can change its body")
-            if any(c.kind == "mass" for c in key) and mass_is_inert(self.env.sys, self.env.backend):
-                raise ValueError(
-                    f"mass cannot change task {self.name}'s body: Brax's {self.env.backend} pipeline gives "
-                    "each of its links unit mass and inertia (its spring_mass_scale and spring_inertia_scale are 1)"
-                )
-            cached = replace(self, modulate=modulation(self.spec.body, key), channels=key)
+            body = modulation(self.spec.body, key)
+            if self.modulate is not scale_gear:  # a task's own alpha hook gets plain gear's value
+                body = _with_own_alpha(self.modulate, body, key)
+            cached = replace(self, modulate=body, channels=key)
             self._channel_tasks[key] = cached
         return cached
 
@@ -186,6 +185,21 @@ class Task:
     @functools.cached_property
     def _scoring_fn(self) -> ScoringFn:
         return jax.jit(self.score)
+
+
+def _with_own_alpha(own: Modulation, body: Modulation, channels: tuple[Channel, ...]) -> Modulation:
+    """A body's hook for a task with its own alpha hook: `own` gets plain gear's value (1 when
+    the channels lack it), the body's hook every other channel."""
+    from smol_dsl.language.channels import GEAR
+
+    gear = channels.index(GEAR) if GEAR in channels else None
+
+    def modulate(sys: System, values: jax.Array) -> System:
+        if gear is None:
+            return body(own(sys, jnp.ones((), values.dtype)), values)
+        return body(own(sys, values[gear]), values.at[gear].set(1))
+
+    return modulate
 
 
 def mean_over_valid(per_step: jax.Array, valid: jax.Array) -> jax.Array:

@@ -6,14 +6,15 @@ pipeline reads:
 
 - gear: `sys.actuator.gear` (`actuator.to_tau` multiplies the actuator's force, bias
   included, by it);
-- mass: `sys.link.inertia.mass` and `sys.link.inertia.i`, and MJX's `body_mass` and
-  `body_inertia` (body = link + 1) so that `sys` stays self-consistent. The spring
-  pipeline uses `mass ** (1 - spring_mass_scale)` and `diag(i) ** (1 - spring_inertia_scale)`
-  (`com.inv_inertia`), so a factor k acts as k on walker2d's masses (its scales are 0 and
-  1: inertia unused), as k^0.7 and k^0.2 on halfcheetah's (0.3, 0.8), and not at all on
-  hopper and ant (1, 1: every link weighs 1), for which `Task.with_channels` refuses mass.
-  The pipeline caches the masses in its state at reset: `Task.rollout` gives the episode
-  start the changed body's (`base.start_in_body`);
+- mass: what the pipeline simulates as each link's mass and rotational inertia, together.
+  Brax's spring (and positional) pipeline simulates `mass ** (1 - spring_mass_scale)` and
+  `diag(i) ** (1 - spring_inertia_scale)` (`com.inv_inertia`): walker2d's scales are 0 and 1
+  (real masses, unit inertia), halfcheetah's 0.3 and 0.8, hopper's and the ant's 1 and 1
+  (every link weighs 1, whatever `sys` says). So the simulated values are written into
+  `sys` with both scales 0, times the factor: on every task, a factor k makes the simulated
+  body k times as heavy and as hard to turn (MJX's `body_mass` and `body_inertia`, body =
+  link + 1, follow). The pipeline caches the masses in its state at reset: `Task.rollout`
+  gives the episode start the changed body's (`base.start_in_body`);
 - friction: `sys.geom_friction` of every geom (and `pair_friction` of explicit pairs). MJX's
   collision (mujoco/mjx/_src/collision_driver.py) gives a contact the larger of its two
   geoms' coefficients, or the priority geom's, so scaling every geom by k > 0 scales every
@@ -104,24 +105,21 @@ def modulation(plan: BodyPlan, channels: Sequence[Channel]) -> Callable[[System,
 
 
 def _scale_mass(sys: System, factor: jax.Array) -> System:
-    """Every link's mass and rotational inertia times its factor (L,), on both of sys's sides."""
+    """The body the pipeline simulates, with every link's mass and rotational inertia times
+    its factor (L,): the simulated values, `x ** (1 - spring_*_scale)`, written into sys with
+    both scales 0 (at factor 1 the simulation is unchanged, bit for bit)."""
     inertia = sys.link.inertia
-    inertia = inertia.replace(mass=inertia.mass * factor, i=inertia.i * factor[:, None, None])
-    sys = sys.replace(link=sys.link.replace(inertia=inertia))
-    body = jnp.concatenate([jnp.ones((1,), factor.dtype), factor])  # body 0 is the world
-    changes = {}
+    mass = inertia.mass ** (1 - sys.spring_mass_scale) * factor
+    diagonal = jnp.diagonal(inertia.i, axis1=-2, axis2=-1) ** (1 - sys.spring_inertia_scale) * factor[:, None]
+    i = diagonal[..., None] * jnp.eye(3, dtype=diagonal.dtype)  # the pipeline reads the diagonal only
+    zero = jnp.zeros((), jnp.result_type(sys.spring_mass_scale))
+    changes = {
+        "link": sys.link.replace(inertia=inertia.replace(mass=mass, i=i)),
+        "spring_mass_scale": zero,
+        "spring_inertia_scale": zero,
+    }
     if getattr(sys, "body_mass", None) is not None:
-        changes["body_mass"] = sys.body_mass * body
+        changes["body_mass"] = jnp.concatenate([sys.body_mass[:1], mass])  # body 0 is the world
     if getattr(sys, "body_inertia", None) is not None:
-        changes["body_inertia"] = sys.body_inertia * body[:, None]
+        changes["body_inertia"] = jnp.concatenate([sys.body_inertia[:1], diagonal])
     return sys.replace(**changes)
-
-
-def mass_is_inert(sys: System, backend: str) -> bool:
-    """Whether the pipeline gives every link unit mass and inertia whatever sys says (Brax's
-    spring and positional pipelines with spring_mass_scale = spring_inertia_scale = 1)."""
-    return (
-        backend in ("spring", "positional")
-        and float(sys.spring_mass_scale) == 1.0
-        and float(sys.spring_inertia_scale) == 1.0
-    )

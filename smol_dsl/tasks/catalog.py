@@ -90,7 +90,6 @@ ANT_OMNI = TaskSpec(
         "quick": dict(batch_size=64, episode_length=100, evaluations=12_800, hidden_layer_sizes=(256, 256)),
     },
     body=ANT_BODY,
-    inert_kinds=("mass",),  # spring_mass_scale = spring_inertia_scale = 1
 )
 
 HOPPER = TaskSpec(
@@ -113,7 +112,6 @@ HOPPER = TaskSpec(
         actuator_groups={"whole_leg": ("thigh_joint", "leg_joint", "foot_joint")},
         link_groups={"whole_leg": ("thigh", "leg", "foot")},  # "leg" is a link: the shin
     ),
-    inert_kinds=("mass",),  # spring_mass_scale = spring_inertia_scale = 1
 )
 
 ANT_UNI = TaskSpec(
@@ -131,5 +129,4 @@ ANT_UNI = TaskSpec(
     },
     details={"feet": tuple(f"lower_leg_{i}" for i in "1234")},
     body=ANT_BODY,
-    inert_kinds=("mass",),  # spring_mass_scale = spring_inertia_scale = 1
 )

@@ -45,9 +45,6 @@ class TaskSpec:
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     details: Mapping[str, Any] = field(default_factory=dict)  # for the factory, e.g. the feet's link names
     body: BodyPlan | None = None  # the actuators and links a schedule's channels can name
-    # channel kinds that cannot change this body on Brax's spring pipeline (mass where every link
-    # weighs 1 whatever sys says): Task.with_channels refuses them; listed here for checks without JAX
-    inert_kinds: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
