@@ -326,6 +326,7 @@ def _certificates_text(schedule: Any) -> str:
 
 
 def _plot(args: argparse.Namespace) -> int:
+    from smol_dsl.language.channels import GEAR
     from smol_dsl.results.figures import FIGURE_FORMATS, PAPER_FIGURE, save_figure, schedule_figure
 
     names = args.schedules or list(PAPER_FIGURE)
@@ -346,10 +347,11 @@ def _plot(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     for schedule in schedules:
         if schedule.tail_phases(args.phases) == 0:
+            final = "alpha = 1" if schedule.final_body == {GEAR: 1.0} else "its final body"
             print(
                 f"smol-dsl plot: note: with {args.phases} phases no phase of {schedule.name} runs wholly "
-                f"at alpha = 1 (its tail starts at {float(schedule.tail_start) * 100:g}%); "
-                "a run needs at least one phase at alpha = 1 to compare schedules on the same body",
+                f"at {final} (its tail starts at {float(schedule.tail_start) * 100:g}%); "
+                f"a run needs at least one phase at {final} to compare schedules on the same body",
                 file=sys.stderr,
             )
     import jax

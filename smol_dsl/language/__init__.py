@@ -1,20 +1,25 @@
 """The `.sched` schedule language: text -> syntax tree -> exact sympy -> proof -> JAX.
 
-The public API is re-exported by `smol_dsl` (`load`, `parse`, `Schedule`, `Certificate`,
-`library_names`). The modules, in the order a schedule goes through them:
+A file schedules one or more channels (physical parameters of the body: `gear`, the paper's
+alpha, `mass`, `friction`, `gravity`, or some actuators' or links' only), each proven and
+evaluated on its own. The public API is re-exported by `smol_dsl` (`load`, `parse`,
+`Schedule`, `Curve`, `Certificate`, `Channel`, `GEAR`, `BodyPlan`, `library_names`). The
+modules, in the order a schedule goes through them:
 
+- `channels`: the channel kinds, `Channel`, and `BodyPlan` (a task's actuators, links, groups).
 - `sched.lark`: the grammar, one rule per segment shape (`KEYWORD_shape`).
 - `grammar`: sched.lark completed from the shape registry; the reserved words.
 - `syntax`: text -> syntax tree (the Lark parser, its Transformer, friendly syntax errors).
 - `tree`: the syntax tree's node types.
 - `compiler`: syntax tree -> exact sympy: constants, positions, each segment through its shape.
-- `symbolic`: the exact form: the variable `T`, pieces, segments, programs.
+- `symbolic`: the exact form: the variable `T`, pieces, segments, each channel's curve, programs.
 - `shapes`: the shape registry, one unit per kind of segment (`shapes.base.Shape`).
-- `verify`: the language's rules proven, and the `Certificate`.
+- `verify`: the language's rules proven for each channel, and the `Certificate`.
 - `prover`: extrema, monotonicity and domains of a function of t, by sympy or interval arithmetic,
   under CPU-time budgets.
 - `float32`: proof that the float32 program of a formula is finite and close to exact.
 - `jaxify`: a formula's sympy expression -> a JAX function.
-- `schedule`: `Schedule`, `parse` and `load`: evaluating alpha in JAX.
+- `curve`: `Curve`: one channel evaluated in JAX.
+- `schedule`: `Schedule`, `parse` and `load`: a file's channels, alpha and all of them in JAX.
 - `library`: where the bundled schedules live.
 """
