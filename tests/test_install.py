@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
+LIBRARY = sorted(path.stem for path in (REPO / "schedules").glob("*.sched"))  # the checkout's library
 
 PROBE = """
 import smol_dsl, smol_dsl.runner, smol_dsl.tasks  # brax, mujoco and MJX too
@@ -17,8 +18,9 @@ from smol_dsl.language import grammar, library
 assert smol_dsl.runner.__file__.startswith({site!r}) and smol_dsl.tasks.__file__.startswith({site!r})
 assert str(grammar.GRAMMAR_FILE).startswith({site!r}), grammar.GRAMMAR_FILE
 assert str(library.library_dir()).startswith({site!r}), library.library_dir()
-assert len(smol_dsl.library_names()) == 8, smol_dsl.library_names()
+assert smol_dsl.library_names() == {library!r}, smol_dsl.library_names()
 print(smol_dsl.load("human").name, float(smol_dsl.load("smol").phase_alphas(100)[90]))
+print(smol_dsl.load("growth").channels[0].name)
 """
 
 
@@ -39,10 +41,11 @@ def installed(tmp_path_factory) -> Path:
 def test_installed_package_works_from_any_directory(installed, tmp_path):
     package = installed / "smol_dsl"
     assert (package / "language" / "sched.lark").is_file()
-    assert len(list((package / "schedules").glob("*.sched"))) == 8
+    assert sorted(path.stem for path in (package / "schedules").glob("*.sched")) == LIBRARY
+    assert len(LIBRARY) == 11  # the paper's 8 and growth, leg-damage, low-gravity
     env = {**os.environ, "PYTHONPATH": str(installed)}
     result = subprocess.run(
-        [sys.executable, "-c", PROBE.format(site=str(installed))],
+        [sys.executable, "-c", PROBE.format(site=str(installed), library=LIBRARY)],
         cwd=tmp_path,
         env=env,
         capture_output=True,
@@ -50,4 +53,4 @@ def test_installed_package_works_from_any_directory(installed, tmp_path):
         timeout=300,
     )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == ["SMOL-Human", "1.0"]  # and nothing else: no MJX Warp lines
+    assert result.stdout.split() == ["SMOL-Human", "1.0", "mass"]  # and nothing else: no MJX Warp lines
