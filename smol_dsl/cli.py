@@ -77,7 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
             "SCHEDULE arguments are paths, or names of bundled schedules such as `human` or `smol.sched`."
         ),
         epilog="Docs: docs/language.md. Bundled schedules: "
-        "vanilla, smol, smol-reverse, human, random, extinction-05, extinction-10, extinction-50.",
+        "vanilla, smol, smol-reverse, human, random, extinction-05, extinction-10, extinction-50; "
+        "of several channels: growth, leg-damage, low-gravity.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
