@@ -386,6 +386,10 @@ def test_phase_values_of_chosen_channels_has_ones_for_undeclared_ones(three):
     assert np.array_equal(values[:, 1], np.asarray(three.curve(LEFT_LEG).phase_alphas(20)))
     assert np.array_equal(values[:, 2], np.asarray(three.phase_alphas(20)))
     assert np.array_equal(three.checked_phase_values(20, None, chosen), values)
+    by_name = three.phase_values(20, None, ["gravity", "gear[left_leg]", "gear", "friction"])
+    assert np.array_equal(np.asarray(by_name), values)
+    with pytest.raises(ValueError, match="not a channel"):
+        three.phase_values(20, None, ["strength"])
 
 
 def test_one_channel_files_give_their_alphas_bit_for_bit(library):

@@ -89,8 +89,7 @@ class Schedule:
     def curve(self, channel: Channel | str = GEAR) -> Curve:
         """One channel's curve, by `Channel` or name (`"mass"`, `"gear[left_leg]"`); a channel the
         file does not declare is 1 throughout. ValueError for a name that is no channel."""
-        if isinstance(channel, str):
-            channel = Channel.parse(channel)
+        channel = _as_channel(channel)
         found = self._curves.get(channel)
         return found if found is not None else constant_curve(channel)
 
@@ -149,14 +148,15 @@ class Schedule:
         k: jax.typing.ArrayLike,
         num_phases: int,
         key: jax.Array | None = None,
-        channels: Sequence[Channel] | None = None,
+        channels: Sequence[Channel | str] | None = None,
     ) -> jax.Array:
         """Each channel's value during phase `k` of `num_phases`, shape `k.shape + (C,)` for
-        `channels` (default `self.channels`; one the file does not declare is 1). `k` may be traced."""
+        `channels` (default `self.channels`; one the file does not declare is 1; a name stands for
+        its channel). `k` may be traced."""
         import jax.numpy as jnp
 
         columns = []
-        for channel in self.channels if channels is None else channels:
+        for channel in self._chosen(channels):
             if channel in self._curves:
                 columns.append(self._curves[channel].phase_alpha(k, num_phases, key))
             else:
@@ -164,7 +164,7 @@ class Schedule:
         return jnp.stack(columns, axis=-1)
 
     def phase_values(
-        self, num_phases: int, key: jax.Array | None = None, channels: Sequence[Channel] | None = None
+        self, num_phases: int, key: jax.Array | None = None, channels: Sequence[Channel | str] | None = None
     ) -> jax.Array:
         """Each channel's value for every phase, shape (num_phases, C) for `channels` (default
         `self.channels`; one the file does not declare is 1.0 throughout). Column c is
@@ -173,7 +173,7 @@ class Schedule:
 
         check_phases(num_phases)
         columns = []
-        for channel in self.channels if channels is None else channels:
+        for channel in self._chosen(channels):
             if channel in self._curves:
                 columns.append(self._curves[channel].phase_alphas(num_phases, key))
             else:
@@ -181,15 +181,18 @@ class Schedule:
         return jnp.stack(columns, axis=1)
 
     def checked_phase_values(
-        self, num_phases: int, key: jax.Array | None = None, channels: Sequence[Channel] | None = None
+        self, num_phases: int, key: jax.Array | None = None, channels: Sequence[Channel | str] | None = None
     ) -> np.ndarray:
         """`phase_values` on the host, refused with a located ScheduleError if any value is not
         finite and positive (as `checked_phase_alphas`)."""
-        chosen = self.channels if channels is None else tuple(channels)
+        chosen = self._chosen(channels)
         values = np.asarray(self.phase_values(num_phases, key, chosen))
         for column, channel in enumerate(chosen):
             self.curve(channel).check_phase_values(values[:, column], num_phases)
         return values
+
+    def _chosen(self, channels: Sequence[Channel | str] | None) -> tuple[Channel, ...]:
+        return self.channels if channels is None else tuple(_as_channel(channel) for channel in channels)
 
     def tail_phases(self, num_phases: int) -> int:
         """How many of `num_phases` equal phases lie wholly inside every channel's tail."""
@@ -271,6 +274,11 @@ class Schedule:
             f"alpha in [{c.minimum:.4g}, {c.maximum:.4g}], tail from {percent(self.tail_start)}, "
             f"extinction={self.extinction:g})"
         )
+
+
+def _as_channel(channel: Channel | str) -> Channel:
+    """A channel, or the channel a name writes (ValueError for a name that is no channel)."""
+    return Channel.parse(channel) if isinstance(channel, str) else channel
 
 
 def _joined(spans: Sequence[Span]) -> Span:
