@@ -10,7 +10,7 @@ Prints one `name: value` line per figure:
 - vs_qdax_ratio: the engine's evaluations/s on one device over QDax's own MAP-Elites loop
   (`update`) with QDax's walker2d_uni scoring at the same settings (target >= 1.0);
 - compiles_2_phases, compiles_20_phases: XLA compilations of a whole run of 2 and of 20
-  phases under a three-channel schedule (gear, mass, friction: `THREE_CHANNELS`), each in a
+  phases under a three-channel schedule (gear, mass, friction: examples/three-channels.sched), each in a
   fresh process (must be equal: every channel's value is traced);
 - reeval_10pct_over_100pct: time to re-evaluate an archive 10% full over one 100% full
   (target <= 0.2).
@@ -31,6 +31,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 warnings.filterwarnings("ignore")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -56,18 +57,7 @@ def interleaved(programs: dict[str, Callable[[], object]], repeats: int) -> dict
     return {name: statistics.median(values) for name, values in seconds.items()}
 
 
-THREE_CHANNELS = """
-name "three channels"
-channel gear
-  0% .. 90%: random 0.6 .. 1.4 every 5%
-  90% .. 100%: tail
-channel mass
-  0% .. 90%: linear 0.5 -> 1
-  90% .. 100%: tail
-channel friction
-  0% .. 90%: linear 2 -> 1
-  90% .. 100%: tail
-"""
+THREE_CHANNELS = Path(__file__).resolve().parent.parent / "examples" / "three-channels.sched"
 
 
 def count_compiles(phases: int, batch_size: int, episode_length: int) -> int:
@@ -92,7 +82,7 @@ def count_compiles(phases: int, batch_size: int, episode_length: int) -> int:
         episode_length=episode_length,
         num_init_cvt_samples=5000,
     )
-    run_experiment("walker2d", smol_dsl.parse(THREE_CHANNELS), config)
+    run_experiment("walker2d", smol_dsl.load(THREE_CHANNELS), config)
     return len(compiles)
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -32,18 +33,7 @@ SMALL = dict(
     num_init_cvt_samples=2000,
 )
 
-THREE_CHANNELS = """
-name "three channels"
-channel gear
-  0% .. 90%: random 0.6 .. 1.4 every 5%
-  90% .. 100%: tail
-channel mass
-  0% .. 90%: linear 0.5 -> 1
-  90% .. 100%: tail
-channel friction
-  0% .. 90%: linear 2 -> 1
-  90% .. 100%: tail
-"""
+THREE_CHANNELS = Path(__file__).resolve().parent.parent / "examples" / "three-channels.sched"
 
 
 def small_config(**overrides):
@@ -58,11 +48,11 @@ def task():
 @pytest.fixture(scope="module")
 def three_channel_run(task, tmp_path_factory):
     out = tmp_path_factory.mktemp("channels") / "three"
-    return run_experiment(task, smol_dsl.parse(THREE_CHANNELS), small_config(), out_dir=out)
+    return run_experiment(task, smol_dsl.load(THREE_CHANNELS), small_config(), out_dir=out)
 
 
 def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_channel_run, task):
-    schedule = smol_dsl.parse(THREE_CHANNELS)
+    schedule = smol_dsl.load(THREE_CHANNELS)
     assert three_channel_run.channels == (GEAR, Channel("mass"), Channel("friction"))
     values = three_channel_run.values
     assert values.shape == (SMALL["num_phases"], 3)

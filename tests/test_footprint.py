@@ -65,7 +65,7 @@ def test_batch_estimate_is_within_twice_the_compiled_programs_memory():
     )
     archives = engine.empty_archives(jax.random.uniform(jax.random.key(0), (1, 64, 2)))
     starts = engine.put(stack_runs([task.episode_start(0)]))
-    alphas = engine.put(jnp.ones((1,), jnp.float32))
+    alphas = engine.put(jnp.ones((1, 1), jnp.float32))  # one run, its body (alpha,)
     keys = engine.put(jax.random.split(jax.random.key(1), 1))
     compiled = engine._step.lower(archives, alphas, starts, keys).compile().memory_analysis()
     footprint = plan_footprint(config, 1, device_memory(jax.devices()[:1]), 1)

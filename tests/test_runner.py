@@ -168,7 +168,7 @@ def one_run_engine(task, batch_size=16):
         task, batch_size=batch_size, iso_sigma=0.005, line_sigma=0.05, devices=jax.devices()[:1], num_runs=1
     )
     start = engine.put(stack_runs([task.episode_start(0)]))
-    return engine, start, engine.put(jnp.ones((1,), jnp.float32))
+    return engine, start, engine.put(jnp.ones((1, 1), jnp.float32))  # one run, its body (alpha,)
 
 
 def filled(repertoire):

@@ -220,6 +220,14 @@ def metrics_figure(rows: Sequence[Mapping[str, Any]], config: RunConfig, schedul
     return figure
 
 
+def _fitness_image(
+    ax: Any, image: np.ndarray, low: Sequence[float], high: Sequence[float], vmin: Any, vmax: Any
+) -> Any:
+    """An image of fitness over the first two descriptors' box (NaN: nothing there)."""
+    extent = (low[0], high[0], low[1], high[1])
+    return ax.imshow(image, origin="lower", extent=extent, aspect="auto", cmap="viridis", vmin=vmin, vmax=vmax)
+
+
 def archive_view(dimensions: int) -> str:
     """What an archive map shows of a D-descriptor archive, for titles ("" for 2-D)."""
     if dimensions == 1:
@@ -261,15 +269,7 @@ def draw_archive(
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
     _, cell = cKDTree(centroids).query(grid)
     image = np.where(fitnesses[cell] > -np.inf, fitnesses[cell], np.nan).reshape(pixels, pixels)
-    shown = ax.imshow(
-        image,
-        origin="lower",
-        extent=(low[0], high[0], low[1], high[1]),
-        aspect="auto",
-        cmap="viridis",
-        vmin=vmin,
-        vmax=vmax,
-    )
+    shown = _fitness_image(ax, image, low, high, vmin, vmax)
     filled = fitnesses > -np.inf
     ax.scatter(*centroids[~filled].T, s=2, color="0.75", label="empty cell")
     ax.set_xlabel("descriptor 1")
@@ -336,15 +336,7 @@ def _draw_archive_projected(
     best = np.full((bins, bins), -np.inf)
     np.maximum.at(best, (index[:, 1], index[:, 0]), fitnesses)
     image = np.where(best > -np.inf, best, np.nan)
-    shown = ax.imshow(
-        image,
-        origin="lower",
-        extent=(low[0], high[0], low[1], high[1]),
-        aspect="auto",
-        cmap="viridis",
-        vmin=vmin,
-        vmax=vmax,
-    )
+    shown = _fitness_image(ax, image, low, high, vmin, vmax)
     occupied = np.zeros((bins, bins), dtype=bool)
     occupied[index[:, 1], index[:, 0]] = True
     row, column = np.nonzero(occupied & np.isnan(image))  # bins with cells, none filled

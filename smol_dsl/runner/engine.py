@@ -83,7 +83,9 @@ class Engine:
         channels: tuple[Channel, ...] = (GEAR,),
     ) -> None:
         self.channels = tuple(channels)
-        self.task = task = task.with_channels(self.channels)
+        # the body of plain gear alone is alpha, which the task takes itself (its own `modulate`)
+        self._alpha_only = self.channels == (GEAR,)
+        self.task = task = task if self._alpha_only else task.with_channels(self.channels)
         self.batch_size = batch_size
         devices = list(devices) if devices is not None else jax.local_devices()
         self.runs_per_step = default_runs_per_step(devices) if runs_per_step == -1 else runs_per_step
@@ -127,6 +129,8 @@ class Engine:
     def _score(self, genotypes: Any, body: jax.Array, start: Any) -> tuple[jax.Array, jax.Array]:
         """Score one run's batch in its body; along the population axis each device rolls out
         its share, and the shares are gathered in order."""
+        if self._alpha_only:
+            body = body[0]
         shares = self.population_devices
         if shares == 1:
             return self.task.score(genotypes, body, start)
