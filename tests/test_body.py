@@ -99,6 +99,13 @@ def left_leg_gear_times(k):
     )
 
 
+def all_at_once(friction, gravity, left_leg):
+    def edit(sys):
+        return left_leg_gear_times(left_leg)(gravity_times(gravity)(slipperier(friction)(sys)))
+
+    return edit
+
+
 def test_every_task_body_plan_names_its_brax_sys():
     """Actuator i is named by the joint it drives; links follow sys.link_names (names Brax left
     empty excepted)."""
@@ -156,11 +163,9 @@ def test_at_one_every_channel_gives_the_plain_task(walker, walker_body):
     ("changed", "edit"),
     [
         ({"mass": 1.6}, heavier(1.6)),
-        ({"friction": 0.3}, slipperier(0.3)),
-        ({"gravity": 0.6}, gravity_times(0.6)),
-        ({"gear_left_leg": 0.4}, left_leg_gear_times(0.4)),
+        ({"friction": 0.3, "gravity": 0.6, "gear_left_leg": 0.4}, all_at_once(0.3, 0.6, 0.4)),
     ],
-    ids=["mass", "friction", "gravity", "gear[left_leg]"],
+    ids=["mass", "friction, gravity and gear[left_leg]"],
 )
 def test_a_channel_equals_a_hand_edited_brax_sys(walker, walker_body, changed, edit):
     params = walker.init_policies(jax.random.key(8), BATCH)

@@ -1,7 +1,6 @@
 """Runs under multi-channel schedules: every channel's value traced (one compilation for any
-values and phases), a one-channel file trained exactly as alpha alone was, metrics.csv and
-the progress bar with a column per channel, sweeps of schedules with different channels, and
-`report` refusing schedules whose final bodies differ."""
+values and phases), metrics.csv and the progress bar with a column per channel, sweeps of
+schedules with different channels, and `report` refusing schedules whose final bodies differ."""
 
 from __future__ import annotations
 
@@ -10,7 +9,6 @@ import json
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -18,8 +16,6 @@ import smol_dsl
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.results.report import ReportError, load_runs
 from smol_dsl.runner import preset_config, run_experiment, run_sweep
-from smol_dsl.runner.engine import Engine, stack_runs
-from smol_dsl.runner.map_elites import RunStep, cvt_centroids, empty_archive, make_map_elites
 from smol_dsl.runner.progress import ProgressBar
 from smol_dsl.tasks import make_task
 
@@ -91,29 +87,6 @@ def test_progress_bar_shows_every_channel(three_channel_run, capsys):
     bar.close()
     shown = capsys.readouterr().err
     assert "alpha 1.000 mass 1.000 friction 1.000" in shown
-
-
-def test_a_one_channel_file_trains_exactly_as_alpha_alone(task):
-    """The engine's body array (alpha,) scores bit for bit as the scalar alpha of
-    `scale_gear` did before channels existed: same archives after generations and a
-    re-evaluation."""
-    centroids = cvt_centroids(32, task.descriptor_low, task.descriptor_high, 2000, jax.random.key(1))
-    start = task.episode_start(0)
-    engine = Engine(task, batch_size=16, iso_sigma=0.005, line_sigma=0.05, devices=jax.local_devices()[:1])
-    old = RunStep(make_map_elites(16, task.qd_offset, 0.005, 0.05), task.init_policies, task.score, 16)
-    old_generation = jax.jit(old.generation)
-
-    archives = engine.empty_archives(centroids[None])
-    archive = empty_archive(task.init_policies(jax.random.key(0), 1), centroids)
-    key = jax.random.key(2)
-    for alpha in (0.7, 1.4, 1.0):
-        key, subkey = jax.random.split(key)
-        archives, *_ = engine.step(
-            archives, engine.put(jnp.full((1, 1), alpha, jnp.float32)), engine.put(stack_runs([start])), subkey[None]
-        )
-        archive, *_ = old_generation(archive, jnp.float32(alpha), start, subkey)
-        np.testing.assert_array_equal(np.asarray(archives.fitnesses[0]), np.asarray(archive.fitnesses))
-        np.testing.assert_array_equal(np.asarray(archives.descriptors[0]), np.asarray(archive.descriptors))
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,15 @@ import numpy as np
 import pytest
 
 import smol_dsl
-from smol_dsl.runner import RunError, check_config, load_archive, preset_config, run_experiment, schedule_key
+from smol_dsl.runner import (
+    RunError,
+    check_config,
+    load_archive,
+    preset_config,
+    run_experiment,
+    run_sweep,
+    schedule_key,
+)
 from smol_dsl.runner.engine import Engine, stack_runs
 from smol_dsl.runner.map_elites import cvt_centroids
 from smol_dsl.tasks import make_task
@@ -319,17 +327,15 @@ def test_cli_refuses_to_overwrite(tmp_path):
     assert os.listdir(tmp_path / "taken") == ["something"]
 
 
-@pytest.fixture(scope="session")
-def tiny_tasks():
-    return {
-        name: make_task(name, episode_length=10, hidden_layer_sizes=(8, 8))
-        for name in ("walker2d", "halfcheetah", "ant_omni")
-    }
+BUNDLED_TASKS = ("walker2d", "halfcheetah", "ant_omni", "hopper", "ant_uni")
 
 
-@pytest.mark.parametrize("task_name", ["walker2d", "halfcheetah", "ant_omni"])
-def test_every_task_runs_under_every_library_schedule(tiny_tasks, library, task_name):
-    task = tiny_tasks[task_name]
+@pytest.mark.parametrize("task_name", BUNDLED_TASKS)
+def test_every_task_runs_under_every_library_schedule(library, task_name):
+    """Every bundled schedule whose channels the task's body has, trained together (one
+    program per task, its body the union of their channels); the others refused, located,
+    before anything is built."""
+    task = make_task(task_name, episode_length=10, hidden_layer_sizes=(8, 8))
     config = preset_config(
         task_name,
         "quick",
@@ -341,12 +347,21 @@ def test_every_task_runs_under_every_library_schedule(tiny_tasks, library, task_
         hidden_layer_sizes=(8, 8),
         num_init_cvt_samples=1000,
     )
+    runnable = {}
     for name, schedule in library.items():
-        result = run_experiment(task, schedule, config)
-        check_config(config, schedule)
+        if any(task.spec.body.unknown_targets(c) for c in schedule.channels):
+            # leg-damage's left_leg on a body without one
+            with pytest.raises(smol_dsl.ScheduleError, match=f"task {task_name} has no actuators named"):
+                run_experiment(task, schedule, config)
+        else:
+            check_config(config, schedule)
+            runnable[name] = schedule
+    assert {"vanilla", "growth", "low-gravity"} <= set(runnable)
+    results = run_sweep(task, list(runnable.values()), [0], config)
+    for name, result in zip(runnable, results, strict=True):
         assert result.final["evaluations"] == 96, name
         assert result.final["alpha"] == 1.0, name
-        assert result.final["coverage"] > 0 or schedule.extinction > 0, name
+        assert result.final["coverage"] > 0 or runnable[name].extinction > 0, name
         assert np.all(
             np.isfinite(np.asarray(result.repertoire.fitnesses)[np.asarray(result.repertoire.fitnesses) > -np.inf])
         ), name

@@ -22,7 +22,7 @@ from smol_dsl.runner.config import RunConfig, RunError
 from smol_dsl.runner.directories import out_path, prepare_run_directory, run_name
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import fit_sweep
-from smol_dsl.runner.training import PlannedRun, RunResult, schedule_key, train
+from smol_dsl.runner.training import PlannedRun, RunResult, check_bodies, schedule_key, train
 from smol_dsl.tasks.base import Task
 
 __all__ = ["RunError", "RunResult", "run_experiment", "schedule_key"]
@@ -47,11 +47,13 @@ def run_experiment(
     called after every row. `stop_after_generation` stops early (as an interruption would),
     for tests. `devices` (default: every local device) share each generation's population.
     A directory that cannot be used, a damaged checkpoint or a disk that cannot be written
-    is a RunError that names the file and says what to do.
+    is a RunError that names the file and says what to do; a schedule whose channels name
+    parts the task's body lacks, a located ScheduleError.
     """
     started = time.perf_counter()
     directory = out_path(out_dir)
     devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
+    check_bodies(task, [schedule])
     footprint = fit_sweep(config, 1, [config.seed], devices)  # refuses a run that cannot fit, before compiling
     run = PlannedRun(schedule, config, run_name(config.task, schedule, config.seed), directory)
     with contextlib.ExitStack() as held:

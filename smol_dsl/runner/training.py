@@ -80,6 +80,16 @@ def run_channels(schedules: list[Schedule]) -> tuple[Channel, ...]:
     return tuple(dict.fromkeys(channel for schedule in schedules for channel in schedule.channels))
 
 
+def check_bodies(task: Task | str, schedules: list[Schedule]) -> None:
+    """A located ScheduleError for a schedule whose channels name actuators or links the
+    task's body lacks (before anything is created or compiled)."""
+    from smol_dsl.tasks import task_spec
+
+    spec = task_spec(task) if isinstance(task, str) else task.spec
+    for schedule in schedules:
+        schedule.check_body(spec.body, spec.name)
+
+
 def schedule_key(seed: int) -> jax.Array:
     """The key a run draws its schedule's random segments from (one per seed)."""
     return jax.random.fold_in(jax.random.key(seed), 0x5CED)
