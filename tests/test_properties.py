@@ -480,18 +480,22 @@ def test_a_one_percent_random_segment_over_90_percent_gives_90_values_in_100_pha
 # ----------------------------------------------------------------------------- invalid schedules
 
 
+def refusal(case) -> smol_dsl.ScheduleError:
+    """The ScheduleError an invalid case raises; anything else, or acceptance, fails the test."""
+    try:
+        smol_dsl.parse(case.text, path="case.sched")
+    except smol_dsl.ScheduleError as error:
+        return error
+    except Exception as error:  # anything else is a bug
+        pytest.fail(f"{case.rule}: {type(error).__name__}: {error}\n{case.text}")
+    pytest.fail(f"{case.rule}: accepted\n{case.text}")
+
+
 @settings(max_examples=60, **COMMON)
 @given(invalid_schedules())
 def test_invalid_schedules_raise_one_located_schedule_error(case):
     event(case.rule.partition(":")[0])
-    try:
-        smol_dsl.parse(case.text, path="case.sched")
-    except smol_dsl.ScheduleError as error:
-        caught = error
-    except Exception as error:  # anything else is a bug
-        pytest.fail(f"{case.rule}: {type(error).__name__}: {error}\n{case.text}")
-    else:
-        pytest.fail(f"{case.rule}: accepted\n{case.text}")
+    caught = refusal(case)
     assert caught.line is not None and caught.line >= 1, case.rule
     assert caught.column is not None and caught.column >= 1, case.rule
     assert caught.hint, case.rule
@@ -605,14 +609,7 @@ def test_check_body_accepts_exactly_the_bodies_that_have_every_target(multi: Mul
 @given(invalid_multi_channel_schedules())
 def test_invalid_multi_channel_files_raise_one_located_schedule_error(case):
     event(case.rule.partition(":")[0].rstrip("0123456789 "))
-    try:
-        smol_dsl.parse(case.text, path="case.sched")
-    except smol_dsl.ScheduleError as error:
-        caught = error
-    except Exception as error:  # anything else is a bug
-        pytest.fail(f"{case.rule}: {type(error).__name__}: {error}\n{case.text}")
-    else:
-        pytest.fail(f"{case.rule}: accepted\n{case.text}")
+    caught = refusal(case)
     shown = str(caught)
     assert shown.startswith(f"case.sched:{caught.line}:{caught.column}: error: "), shown
     assert caught.hint and f"\nhint: {caught.hint}" in shown
