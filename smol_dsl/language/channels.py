@@ -24,6 +24,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,13 @@ class Channel:
 
 GEAR = Channel("gear")
 """Every actuator's gear: the paper's alpha, and the one channel of a file that declares none."""
+
+
+def differing_finals(mine: Mapping[Any, float], theirs: Mapping[Any, float]) -> list[Any]:
+    """The channels (keys, Channel or name) whose final values differ between two final bodies,
+    in order of appearance; a channel a body does not list ends at 1 (the standard body)."""
+    channels = dict.fromkeys([*mine, *theirs])
+    return [channel for channel in channels if mine.get(channel, 1.0) != theirs.get(channel, 1.0)]
 
 
 @dataclass(frozen=True)

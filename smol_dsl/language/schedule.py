@@ -16,7 +16,7 @@ import numpy as np
 import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, BodyPlan, Channel
+from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, BodyPlan, Channel, differing_finals
 from smol_dsl.language.compiler import compile_program
 from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
@@ -107,9 +107,7 @@ class Schedule:
         """The names of the channels whose final values differ between the two schedules (a
         channel a file does not declare ends at 1), in declared order: empty when both end on
         the same body, so that their runs compare."""
-        mine, theirs = self.final_body, other.final_body
-        channels = list(dict.fromkeys([*mine, *theirs]))
-        return [c.name for c in channels if mine.get(c, 1.0) != theirs.get(c, 1.0)]
+        return [channel.name for channel in differing_finals(self.final_body, other.final_body)]
 
     def check_body(self, plan: BodyPlan | None, task: str) -> None:
         """Refuse, with a located ScheduleError, channels that name actuators or links the

@@ -198,7 +198,7 @@ def metrics_figure(rows: Sequence[Mapping[str, Any]], config: RunConfig, schedul
     axes = figure.subplots(1, len(SCORES) + 1)
     evaluations = np.asarray([r["evaluations"] for r in rows], dtype=float)
     first_tail_phase = config.num_phases - schedule.tail_phases(config.num_phases)
-    final_body = alpha_one_evaluations(rows, first_tail_phase)
+    final_from = alpha_one_evaluations(rows, first_tail_phase)  # evaluations when the body is final
     channels = [name for name in rows[0] if name not in METRICS_SCHEMA.names]
     body = ["alpha", *channels] if GEAR in schedule.channels or not channels else channels
     for ax, name in zip(axes, (*SCORES, "body"), strict=True):
@@ -212,8 +212,8 @@ def metrics_figure(rows: Sequence[Mapping[str, Any]], config: RunConfig, schedul
         else:
             ax.plot(evaluations, np.asarray([r[name] for r in rows], dtype=float), lw=1.4)
             ax.set_ylabel(METRICS_SCHEMA[name].axis_label)
-        if final_body is not None and 0 < final_body:
-            ax.axvline(final_body, color="0.3", ls="--", lw=1.0)
+        if final_from is not None and 0 < final_from:
+            ax.axvline(final_from, color="0.3", ls="--", lw=1.0)
         ax.set_xlabel("evaluations")
         ax.grid(alpha=0.25)
     figure.suptitle(title)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from smol_dsl.errors import UserInputError
+from smol_dsl.language.channels import differing_finals
 from smol_dsl.results.figures import archives_figure, results_figure
 from smol_dsl.results.rundir import (
     CONFIG_FILE,
@@ -172,8 +173,7 @@ def _check_final_bodies(groups: dict[str, list[RunRecord]]) -> None:
     first_name, first = next(iter(groups.items()))
     for name, group in groups.items():
         body, reference = group[0].final_body, first[0].final_body
-        differing = sorted(set(body) | set(reference), key=str)
-        differing = [channel for channel in differing if body.get(channel, 1.0) != reference.get(channel, 1.0)]
+        differing = differing_finals(body, reference)
         if differing:
             channel = differing[0]
             raise ReportError(

@@ -176,6 +176,8 @@ class Training:
         gear = self.channels.index(GEAR) if GEAR in self.channels else None
         self.alphas = self.values[..., gear] if gear is not None else np.ones(self.values.shape[:2], np.float32)
         self.schemas = [rundir.metrics_schema([c.name for c in run.schedule.channels]) for run in runs]
+        # each run's own channels, as columns of the values (its metrics.csv columns and result)
+        self._own = [[self.channels.index(c) for c in run.schedule.channels] for run in runs]
         starts = {seed: task.episode_start(seed) for seed in dict.fromkeys(seeds)}
         self.starts = engine.put(stack_runs([starts[seed] for seed in seeds]))
         self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
@@ -288,9 +290,9 @@ class Training:
     def _body(self, run: int, phase: int) -> dict[str, float]:
         """A run's metrics.csv body columns in a phase: alpha, and its schedule's other channels."""
         body = {"alpha": float(self.alphas[run, phase])}
-        for channel in self.runs[run].schedule.channels:
+        for channel, column in zip(self.runs[run].schedule.channels, self._own[run], strict=True):
             if channel != GEAR:
-                body[channel.name] = float(self.values[run, phase, self.channels.index(channel)])
+                body[channel.name] = float(self.values[run, phase, column])
         return body
 
     def _record(self, metrics: dict[str, np.ndarray], events: list[str], dropped: np.ndarray) -> None:
@@ -327,7 +329,6 @@ class Training:
                     save_checkpoint(run.directory / CHECKPOINT_FILE, single, key, [state], owner([run], run.config))
                 finish_run_directory(run.directory, state, repertoire, self.task, run.config, run.schedule)
             seconds = time.perf_counter() - started
-            own = [self.channels.index(channel) for channel in run.schedule.channels]
             results.append(
                 RunResult(
                     repertoire,
@@ -336,7 +337,7 @@ class Training:
                     self.alphas[r],
                     run.directory,
                     seconds,
-                    self.values[r][:, own],
+                    self.values[r][:, self._own[r]],
                     run.schedule.channels,
                 )
             )
