@@ -18,9 +18,9 @@ from smol_dsl.errors import UserInputError
 from smol_dsl.seeds import check_seed
 
 if TYPE_CHECKING:
-    from smol_dsl.language.channels import BodyPlan
-    from smol_dsl.runner import RunConfig
+    from smol_dsl.rundir import RunConfig
     from smol_dsl.runner.footprint import Footprint
+    from smol_dsl.tasks import Anatomy, TaskSpec
 
 T = TypeVar("T")
 
@@ -276,54 +276,44 @@ def _load_all(names: Sequence[str]) -> tuple[list, list[str]]:
 
 
 def _check(args: argparse.Namespace) -> int:
-    plan = None
+    schedules, errors = _load_all(args.schedules)
     if args.task is not None:
         from smol_dsl.tasks import task_spec
 
         _check_task(args.task)
-        plan = task_spec(args.task).body
-    schedules, errors = _load_all(args.schedules)
-    if args.task is not None:
-        schedules, errors = _check_bodies(schedules, errors, plan, args.task)
+        spec = task_spec(args.task)
+        schedules, errors = _check_bodies(schedules, errors, spec)
         if not args.quiet:
-            print(_body_text(plan, args.task))
+            print(_anatomy_text(spec.anatomy, args.task))
     if not args.quiet:
         for schedule in schedules:
             about = f" - {schedule.description}" if schedule.description else ""
             print(f"{schedule.path}: ok: {schedule.name}{about}")
-            print(_certificates_text(schedule))
+            print(schedule.certificates_text())
     for error in errors:
         print(error, file=sys.stderr)
     return EXIT_USAGE if errors else EXIT_OK
 
 
-def _check_bodies(schedules: list, errors: list[str], plan: BodyPlan | None, task: str) -> tuple[list, list[str]]:
+def _check_bodies(schedules: list, errors: list[str], spec: TaskSpec) -> tuple[list, list[str]]:
     """The schedules whose channels the task's body has, and the errors of the others."""
     from smol_dsl import ScheduleError
 
     fitting = []
     for schedule in schedules:
         try:
-            schedule.check_body(plan, task)
+            spec.check_schedule(schedule)
             fitting.append(schedule)
         except ScheduleError as error:
             errors.append(str(error))
     return fitting, errors
 
 
-def _body_text(plan: BodyPlan | None, task: str) -> str:
+def _anatomy_text(anatomy: Anatomy | None, task: str) -> str:
     """What `check --task` says of the task's body: the parts channels can name."""
-    if plan is None:
+    if anatomy is None:
         return f"{task}: its body is not listed; only channels without targets (`channel gear`) can be checked"
-    return "\n".join(f"{task}: {plan.describe_part(part)}" for part in ("actuators", "links"))
-
-
-def _certificates_text(schedule: Any) -> str:
-    """Each declared channel's certificate, under a `channel NAME:` line when there are several."""
-    certificates = schedule.certificates
-    if len(certificates) == 1:
-        return str(next(iter(certificates.values())))
-    return "\n".join(f"channel {channel.name}:\n{certificate}" for channel, certificate in certificates.items())
+    return "\n".join(f"{task}: {text}" for text in anatomy.listing().values())
 
 
 def _plot(args: argparse.Namespace) -> int:
@@ -434,6 +424,7 @@ def _run(args: argparse.Namespace) -> int:
             args.task, schedule, config, out_dir=out, resume=args.resume, progress=progress, devices=devices
         ),
     )
+    _draw_figures([result])
     print(summary_line(result, schedule))
     return EXIT_OK
 
@@ -512,8 +503,18 @@ def _sweep(args: argparse.Namespace) -> int:
             part=part,
         ),
     )
+    _draw_figures(results)
     print(sweep_summary(results, out))
     return EXIT_OK
+
+
+def _draw_figures(results: Sequence[Any]) -> None:
+    """Each finished run directory's metrics.png and archive.png, after training."""
+    from smol_dsl.results.figures import save_run_figures
+
+    for result in results:
+        if result.out_dir is not None and result.final["generation"] >= result.config.generations:
+            save_run_figures(result.out_dir)
 
 
 def _check_out(out: str | None) -> None:

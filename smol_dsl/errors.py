@@ -20,7 +20,7 @@ class UserInputError(Exception):
 
     The message names the file or option and says what to do. The library raises subclasses
     (`ScheduleError`, `smol_dsl.runner.RunError`, `smol_dsl.results.report.ReportError`,
-    `smol_dsl.results.rundir.RunDirectoryError`); the CLI prints the message and exits with
+    `smol_dsl.rundir.RunDirectoryError`); the CLI prints the message and exits with
     status 2, without a traceback.
     """
 

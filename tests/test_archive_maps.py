@@ -7,7 +7,7 @@ from matplotlib.figure import Figure
 from test_report import write_run
 
 from smol_dsl.results.figures import archive_figure, archive_view, archives_figure, draw_archive, save_run_figures
-from smol_dsl.results.rundir import FinalArchive, read_run
+from smol_dsl.rundir import FinalArchive
 
 
 def archive(cells: int, dimensions: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -60,13 +60,8 @@ def test_titles_say_what_the_map_shows():
 
 
 def test_run_figures_draw_archives_of_any_dimension(tmp_path, library):
-    run = read_run(write_run(tmp_path / "run", library, "human", 0, {"max_fitness": 1.0}))
-    for dimensions in (1, 4):
-        out = tmp_path / f"d{dimensions}"
-        out.mkdir()
-        centroids, fitnesses = archive(256, dimensions)
-        arrays = {"fitnesses": fitnesses, "centroids": centroids}
-        bounds = ((0.0,) * dimensions, (1.0,) * dimensions)
-        written = save_run_figures(out, run.rows, arrays, bounds, run.config, library["human"])
+    for task in ("hopper", "ant_uni"):  # 1 and 4 descriptors
+        directory = write_run(tmp_path / task, library, "human", 0, {"max_fitness": 1.0}, task=task)
+        written = save_run_figures(directory)
         assert [p.name for p in written] == ["metrics.png", "archive.png"]
         assert written[1].read_bytes().startswith(b"\x89PNG")

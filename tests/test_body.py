@@ -10,8 +10,8 @@ import pytest
 
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.tasks import TASK_NAMES, make_task, task_spec
-from smol_dsl.tasks.base import deterministic_init_state, scale_gear, with_sys
-from smol_dsl.tasks.body import modulation
+from smol_dsl.tasks.base import deterministic_init_state, with_sys
+from smol_dsl.tasks.body import modulation, scale_gear
 
 EPISODE = 50  # the episodes of conftest's walker and cheetah
 BATCH = 8
@@ -106,12 +106,12 @@ def all_at_once(friction, gravity, left_leg):
     return edit
 
 
-def test_every_task_body_plan_names_its_brax_sys():
+def test_every_task_anatomy_names_its_brax_sys():
     """Actuator i is named by the joint it drives; links follow sys.link_names (names Brax left
     empty excepted)."""
     assert len(TASK_NAMES) >= 5
-    for name in TASK_NAMES:  # the bundled tasks: each has a body plan
-        plan = task_spec(name).body
+    for name in TASK_NAMES:  # the bundled tasks: each has an anatomy
+        plan = task_spec(name).anatomy
         sys = make_task(name, episode_length=5, hidden_layer_sizes=(4,)).env.sys
         model = sys.mj_model
         driven = tuple(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in model.actuator_trnid[:, 0])
@@ -129,7 +129,7 @@ def test_every_task_body_plan_names_its_brax_sys():
 
 def test_ant_lower_legs_are_the_links_the_ankles_drive():
     sys = make_task("ant_uni", episode_length=5, hidden_layer_sizes=(4,)).env.sys
-    plan, model = task_spec("ant_uni").body, sys.mj_model
+    plan, model = task_spec("ant_uni").anatomy, sys.mj_model
     for leg in "1234":
         link = plan.links.index(f"lower_leg_{leg}")
         assert sys.link_parents[link] == plan.links.index(f"aux_{leg}")
@@ -139,21 +139,25 @@ def test_ant_lower_legs_are_the_links_the_ankles_drive():
 
 
 def test_the_gear_channel_is_scale_gear_bit_for_bit(walker):
-    task = walker.with_channels((GEAR,))
-    assert task is walker.with_channels(["gear"]) and task.channels == (GEAR,)
-    mine, theirs = task.modulate(walker.env.sys, jnp.array([1.3])), scale_gear(walker.env.sys, jnp.float32(1.3))
+    """Plain gear, the default body: its hook is `scale_gear` of the one factor, and scoring in
+    body [1.3] equals scoring in a sys whose gear was scaled by hand, bit for bit."""
+    import dataclasses
+
+    assert walker.channels == (GEAR,) and walker.with_channels(["gear"]) is walker
+    mine, theirs = walker.modulate(walker.env.sys, jnp.array([1.3])), scale_gear(walker.env.sys, jnp.float32(1.3))
     for a, b in zip(jax.tree.leaves(mine), jax.tree.leaves(theirs), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    by_hand = dataclasses.replace(walker, modulation=lambda anatomy, channels: lambda sys, body: theirs)
     params = walker.init_policies(jax.random.key(6), BATCH)
-    expected = walker.scoring_fn()(params, jnp.float32(1.3), start(walker))
-    actual = task.scoring_fn()(params, jnp.array([1.3], jnp.float32), start(walker))
+    expected = by_hand.scoring_fn()(params, jnp.ones(1), start(walker))
+    actual = walker.scoring_fn()(params, jnp.array([1.3], jnp.float32), start(walker))
     for a, b in zip(actual, expected, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_at_one_every_channel_gives_the_plain_task(walker, walker_body):
     params = walker.init_policies(jax.random.key(7), BATCH)
-    expected = walker.scoring_fn()(params, jnp.float32(1.0), start(walker))
+    expected = walker.scoring_fn()(params, jnp.array([1.0]), start(walker))
     actual = walker_body.scoring_fn()(params, values(), start(walker))
     for a, b in zip(actual, expected, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -173,7 +177,7 @@ def test_a_channel_equals_a_hand_edited_brax_sys(walker, walker_body, changed, e
     expected_fitnesses, expected_descriptors = hand_edited_scores(walker, params, edit)
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
-    plain = np.asarray(walker.scoring_fn()(params, jnp.float32(1.0), start(walker))[0])
+    plain = np.asarray(walker.scoring_fn()(params, jnp.array([1.0]), start(walker))[0])
     assert np.abs(np.asarray(fitnesses) - plain).max() > 0.1  # the channel changed the physics
 
 
@@ -244,7 +248,7 @@ def test_heavier_links_keep_their_mass_from_the_first_step(walker, walker_body):
     changed body's, or a heavier walker would move as the plain one until the end."""
     params = walker.init_policies(jax.random.key(10), BATCH)
     heavy = walker_body.scoring_fn()(params, values(mass_right_leg=3.0), start(walker))[0]
-    plain = walker.scoring_fn()(params, jnp.float32(1.0), start(walker))[0]
+    plain = walker.scoring_fn()(params, jnp.array([1.0]), start(walker))[0]
     assert not np.allclose(np.asarray(heavy), np.asarray(plain))
 
 
@@ -255,8 +259,8 @@ def test_channels_the_body_cannot_take_are_refused(walker):
         walker.with_channels(["friction[foot]"])
     with pytest.raises(ValueError, match="no channels"):
         walker.with_channels([])
-    with pytest.raises(ValueError, match="body plan has 6 actuators and 7 links"):
-        modulation(task_spec("walker2d").body, (GEAR,))(make_task("hopper", episode_length=5).env.sys, jnp.ones(1))
+    with pytest.raises(ValueError, match="anatomy has 6 actuators and 7 links"):
+        modulation(task_spec("walker2d").anatomy, (GEAR,))(make_task("hopper", episode_length=5).env.sys, jnp.ones(1))
 
 
 def test_mass_changes_a_body_brax_simulates_with_unit_masses():
@@ -267,7 +271,7 @@ def test_mass_changes_a_body_brax_simulates_with_unit_masses():
     assert float(hopper.env.sys.spring_mass_scale) == 1.0 == float(hopper.env.sys.spring_inertia_scale)
     body = hopper.with_channels(["gear", "mass[whole_leg]", "friction", "gravity"])
     params = hopper.init_policies(jax.random.key(11), BATCH)
-    plain = hopper.scoring_fn()(params, jnp.float32(1.0), start(hopper))
+    plain = hopper.scoring_fn()(params, jnp.ones(1), start(hopper))
     at_one = body.scoring_fn()(params, jnp.ones(4), start(hopper))
     for a, b in zip(at_one, plain, strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -277,12 +281,16 @@ def test_mass_changes_a_body_brax_simulates_with_unit_masses():
     np.testing.assert_array_equal(np.asarray(sys.link.inertia.mass), [1.0, 3.0, 3.0, 3.0])  # torso unscheduled
 
 
-def test_a_task_with_its_own_alpha_hook_keeps_it_under_channels(walker):
-    """A task's own `modulate` (here, gear times 2 alpha) still gets plain gear's value."""
+def test_a_task_with_its_own_modulation_gets_every_body(walker):
+    """A task's own `modulation` (here, the standard hook on a sys with twice the gear) makes
+    the hook of whatever channels the task is put under."""
     import dataclasses
 
-    doubled = dataclasses.replace(walker, modulate=lambda sys, alpha: scale_gear(sys, 2 * alpha))
-    body = doubled.with_channels(["gear", "gravity"])
+    def doubled(anatomy, channels):
+        standard = modulation(anatomy, channels)
+        return lambda sys, body: standard(scale_gear(sys, 2.0), body)
+
+    body = dataclasses.replace(walker, modulation=doubled).with_channels(["gear", "gravity"])
     sys = body.modulate(walker.env.sys, jnp.asarray([0.5, 0.5]))
     np.testing.assert_allclose(np.asarray(sys.actuator.gear), np.asarray(walker.env.sys.actuator.gear))
     np.testing.assert_allclose(np.asarray(sys.gravity), np.asarray(walker.env.sys.gravity) * 0.5)

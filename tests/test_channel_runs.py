@@ -50,7 +50,7 @@ def three_channel_run(task, tmp_path_factory):
 def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_channel_run, task):
     schedule = smol_dsl.load(THREE_CHANNELS)
     assert three_channel_run.channels == (GEAR, Channel("mass"), Channel("friction"))
-    values = three_channel_run.values
+    values = three_channel_run.bodies
     assert values.shape == (SMALL["num_phases"], 3)
     assert len({tuple(row) for row in values}) > 10  # the body changes from phase to phase
     from smol_dsl.runner.engine import shared_engine
@@ -60,7 +60,7 @@ def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_ch
     assert programs[0] >= 1 and programs[1] == 1  # (the initial population's step may be its own program)
     # another run of these channels, with 4 phases of other values and another seed: no new program
     again = run_experiment(task, schedule, small_config(num_phases=4, seed=9))
-    assert not np.array_equal(again.values, values[:4])
+    assert not np.array_equal(again.bodies, values[:4])
     assert (engine._step._cache_size(), engine._reevaluate_chunk._cache_size()) == programs
 
 
@@ -69,7 +69,7 @@ def test_metrics_csv_has_a_column_per_channel(three_channel_run):
         rows = list(csv.DictReader(file))
     header = list(rows[0])
     assert header[:5] == ["generation", "phase", "alpha", "mass", "friction"]
-    values = three_channel_run.values
+    values = three_channel_run.bodies
     for row in rows:
         phase = int(row["phase"])
         assert [float(row["alpha"]), float(row["mass"]), float(row["friction"])] == pytest.approx(

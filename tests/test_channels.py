@@ -1,5 +1,5 @@
 """Multi-channel schedules: `channel` sections, `final` bodies, per-channel proofs and
-certificates, `Schedule.curve`, `phase_values`, `check_body`, and the CLI's `check --task` and
+certificates, `Schedule.curve`, `phase_values`, `check_targets`, and the CLI's `check --task` and
 `plot` of several channels."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import smol_dsl
-from smol_dsl import GEAR, BodyPlan, Channel, ScheduleError
+from smol_dsl import GEAR, Anatomy, Channel, ScheduleError
 from smol_dsl.cli import main
 from smol_dsl.language.curve import Curve
 
@@ -44,7 +44,7 @@ channel gear[left_leg]
   90% .. 100%: tail
 """
 
-BODY = BodyPlan(
+BODY = Anatomy(
     actuators=("hip", "knee", "hip_left", "knee_left"),
     links=("torso", "thigh", "thigh_left"),
     actuator_groups={"left_leg": ("hip_left", "knee_left")},
@@ -276,9 +276,9 @@ def test_final_body_and_final_differences(three, library):
 def test_the_final_value_is_the_tail_in_jax(three):
     leg = three.curve(LEFT_LEG)
     assert leg.final == 0.5 and leg.tail_start == pytest.approx(0.9)
-    values = np.asarray(leg.phase_alphas(100))
+    values = np.asarray(leg.phase_values(100))
     assert np.all(values[90:] == np.float32(0.5)) and values[0] == 1.0
-    assert float(leg.value(0.95)) == 0.5 == float(leg.alpha(1.0))
+    assert float(leg.value(0.95)) == 0.5 == float(leg.value(1.0))
 
 
 def test_a_final_value_that_is_not_a_float32_is_rounded_once():
@@ -320,20 +320,20 @@ def test_repr_mentions_the_channels(three, library):
     assert "Curve(gear[left_leg]" in repr(three.curve(LEFT_LEG))
 
 
-# ----------------------------------------------------------------------------- check_body
+# ----------------------------------------------------------------------------- check_targets
 
 
-def test_check_body_accepts_names_and_groups():
+def test_check_targets_accepts_names_and_groups():
     for text in ("channel gear[left_leg, hip]", "channel mass[left_leg, torso]", "channel gravity", "channel gear"):
-        smol_dsl.parse(text + "\n0% .. 100%: tail\n").check_body(BODY, "toy")
+        smol_dsl.parse(text + "\n0% .. 100%: tail\n").check_targets(BODY.targets(), "toy", BODY.listing())
 
 
-def test_check_body_locates_a_target_the_body_lacks():
+def test_check_targets_locates_a_target_the_body_lacks():
     schedule = smol_dsl.parse(
         "channel mass\n0% .. 100%: tail\nchannel gear[hip, left_lge]\n0% .. 100%: tail\n", path="b.sched"
     )
     with pytest.raises(ScheduleError) as caught:
-        schedule.check_body(BODY, "toy")
+        schedule.check_targets(BODY.targets(), "toy", BODY.listing())
     error = caught.value
     assert (error.path, error.line, error.column, error.span.length) == ("b.sched", 3, 19, 8)
     assert error.message == "task toy has no actuators named `left_lge`"
@@ -343,28 +343,28 @@ def test_check_body_locates_a_target_the_body_lacks():
     assert "^^^^^^^^" in str(error)
 
 
-def test_check_body_knows_links_from_actuators():
+def test_check_targets_knows_links_from_actuators():
     schedule = smol_dsl.parse("channel mass[knee]\n0% .. 100%: tail\n")
     with pytest.raises(ScheduleError, match="task toy has no links named `knee`") as caught:
-        schedule.check_body(BODY, "toy")
+        schedule.check_targets(BODY.targets(), "toy", BODY.listing())
     assert "links: torso, thigh, thigh_left" in caught.value.hint
 
 
-def test_check_body_without_a_body_plan():
-    smol_dsl.parse("channel mass\n0% .. 100%: tail\n").check_body(None, "blob")  # no targets: nothing to check
+def test_check_targets_without_a_body_plan():
+    smol_dsl.parse("channel mass\n0% .. 100%: tail\n").check_targets(None, "blob")  # no targets: nothing to check
     schedule = smol_dsl.parse("channel gear[a, b]\n0% .. 100%: tail\n")
     with pytest.raises(ScheduleError, match="task blob does not list its actuators") as caught:
-        schedule.check_body(None, "blob")
+        schedule.check_targets(None, "blob")
     assert (caught.value.line, caught.value.column, caught.value.span.length) == (1, 14, 4)
 
 
 def test_walker2d_has_the_leg_damage_group(library):
     from smol_dsl.tasks import task_spec
 
-    plan = task_spec("walker2d").body
-    library["leg-damage"].check_body(plan, "walker2d")
-    library["growth"].check_body(plan, "walker2d")
-    assert plan.indices(LEFT_LEG) == (3, 4, 5)
+    spec = task_spec("walker2d")
+    spec.check_schedule(library["leg-damage"])
+    spec.check_schedule(library["growth"])
+    assert spec.anatomy.indices(LEFT_LEG) == (3, 4, 5)
 
 
 # ----------------------------------------------------------------------------- phase values
@@ -375,7 +375,7 @@ def test_phase_values_has_a_column_per_channel(three):
     values = three.phase_values(100, key)
     assert values.shape == (100, 3) and values.dtype == jnp.float32
     for column, channel in enumerate(three.channels):
-        assert np.array_equal(np.asarray(values[:, column]), np.asarray(three.curve(channel).phase_alphas(100, key)))
+        assert np.array_equal(np.asarray(values[:, column]), np.asarray(three.curve(channel).phase_values(100, key)))
 
 
 def test_phase_values_of_chosen_channels_has_ones_for_undeclared_ones(three):
@@ -383,7 +383,7 @@ def test_phase_values_of_chosen_channels_has_ones_for_undeclared_ones(three):
     values = np.asarray(three.phase_values(20, None, chosen))
     assert values.shape == (20, 4)
     assert np.all(values[:, 0] == 1.0) and np.all(values[:, 3] == 1.0)
-    assert np.array_equal(values[:, 1], np.asarray(three.curve(LEFT_LEG).phase_alphas(20)))
+    assert np.array_equal(values[:, 1], np.asarray(three.curve(LEFT_LEG).phase_values(20)))
     assert np.array_equal(values[:, 2], np.asarray(three.phase_alphas(20)))
     assert np.array_equal(three.checked_phase_values(20, None, chosen), values)
     by_name = three.phase_values(20, None, ["gravity", "gear[left_leg]", "gear", "friction"])
@@ -432,9 +432,9 @@ def test_phase_values_under_jit_with_a_traced_key(three):
 
 def test_checked_phase_values_refuses_a_bad_value_with_a_located_error(monkeypatch, three):
     leg = three.curve(LEFT_LEG)
-    table = np.array(leg.phase_alphas(10))
+    table = np.array(leg.phase_values(10))
     table[4] = 0.0
-    monkeypatch.setattr(leg, "phase_alphas", lambda n, key=None: table)
+    monkeypatch.setattr(leg, "phase_values", lambda n, key=None: table)
     with pytest.raises(ScheduleError, match=r"gear\[left_leg\] of phase 4 of 10 \(t = 40%, segment 2\)") as caught:
         three.checked_phase_values(10)
     assert caught.value.path == "three.sched" and caught.value.line == 17
@@ -457,7 +457,7 @@ def test_other_channels_draw_from_a_key_folded_with_their_name():
     alone = smol_dsl.parse(RANDOM)
     mixed = smol_dsl.parse("channel mass[thigh]\n" + RANDOM + "channel gear\n" + RANDOM)
     folded = jax.random.fold_in(key, zlib.crc32(b"mass[thigh]"))
-    mass = np.asarray(mixed.curve("mass[thigh]").phase_alphas(100, key))
+    mass = np.asarray(mixed.curve("mass[thigh]").phase_values(100, key))
     assert np.array_equal(mass, np.asarray(alone.phase_alphas(100, folded)))
     assert not np.array_equal(mass, np.asarray(mixed.phase_alphas(100, key)))  # channels draw independently
 
@@ -498,7 +498,7 @@ def test_growth_strength_is_mass_to_the_two_thirds(library):
 
 def test_low_gravity_starts_on_the_moon(library):
     gravity = library["low-gravity"].curve(GRAVITY)
-    values = np.asarray(gravity.phase_alphas(100))
+    values = np.asarray(gravity.phase_values(100))
     assert values[0] == np.float32(0.165) and np.all(values[:31] == np.float32(0.165))
     assert np.all(np.diff(values[30:91]) > 0) and np.all(values[90:] == 1.0)
 

@@ -294,14 +294,14 @@ def test_a_non_finite_phase_table_is_refused_with_a_located_error(monkeypatch):
     schedule = smol_dsl.parse("0% .. 50%: constant 1.5\n50% .. 90%: constant 2\n90% .. 100%: tail\n", path="x.sched")
     table = np.array(schedule.phase_alphas(10))
     table[6] = np.nan
-    monkeypatch.setattr(schedule.curve(), "phase_alphas", lambda n, key=None: table)
+    monkeypatch.setattr(schedule.curve(), "phase_values", lambda n, key=None: table)
     with pytest.raises(smol_dsl.ScheduleError, match="alpha of phase 6 of 10") as caught:
         schedule.checked_phase_alphas(10)
     assert caught.value.path == "x.sched" and caught.value.line == 2
 
 
 def test_run_refuses_a_non_finite_phase_table_before_creating_anything(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(Curve, "phase_alphas", lambda self, n, key=None: np.full(n, np.nan, np.float32))
+    monkeypatch.setattr(Curve, "phase_values", lambda self, n, key=None: np.full(n, np.nan, np.float32))
     out = tmp_path / "run"
     code = main(["run", "walker2d", "smol", "--out", str(out), "--no-progress"])
     err = capsys.readouterr().err

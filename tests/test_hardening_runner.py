@@ -19,8 +19,9 @@ import pytest
 
 from smol_dsl.cli import main
 from smol_dsl.errors import UserInputError
-from smol_dsl.results import rundir as rundir_module
-from smol_dsl.results.rundir import LOCK_FILE, atomic_write
+from smol_dsl.rundir import LOCK_FILE, atomic_write
+from smol_dsl.rundir import files as rundir_files
+from smol_dsl.rundir import metrics as rundir_metrics
 from smol_dsl.runner import RunError, preset_config, run_experiment, run_sweep, schedule_key
 from smol_dsl.runner import checkpoint as checkpoint_module
 from smol_dsl.runner.checkpoint import CheckpointWriter, load_checkpoint
@@ -269,9 +270,9 @@ class FullAfter:
 
 def test_full_disk_while_writing_metrics_then_resume_without_metrics(reference, library, tmp_path, monkeypatch):
     out = tmp_path / "run"
-    full = FullAfter(rundir_module.csv.DictWriter)
+    full = FullAfter(rundir_metrics.csv.DictWriter)
     full.rows = 8
-    monkeypatch.setattr(rundir_module.csv, "DictWriter", full)
+    monkeypatch.setattr(rundir_metrics.csv, "DictWriter", full)
     locked = []
 
     def progress(row, total):  # the run holds its directory's lock while it trains
@@ -295,7 +296,7 @@ def test_full_disk_while_writing_metrics_then_resume_without_metrics(reference, 
 
 def test_full_disk_while_setting_up_leaves_nothing(library, tmp_path, monkeypatch):
     out = tmp_path / "run"
-    real = rundir_module.atomic_write
+    real = rundir_files.atomic_write
     written = []
 
     def atomic(path, write):
@@ -304,7 +305,7 @@ def test_full_disk_while_setting_up_leaves_nothing(library, tmp_path, monkeypatc
         written.append(path)
         return real(path, write)
 
-    monkeypatch.setattr(rundir_module, "atomic_write", atomic)
+    monkeypatch.setattr(rundir_files, "atomic_write", atomic)
     with pytest.raises(RunError, match=r"schedule.sched: No space left on device; nothing was started"):
         run_experiment("walker2d", library["human"], CONFIG, out_dir=out)
     assert [p.name for p in out.iterdir() if p.name != LOCK_FILE] == []  # config.json removed again

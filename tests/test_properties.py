@@ -38,7 +38,7 @@ from strategies import (
 from sympy.core.function import AppliedUndef
 
 import smol_dsl
-from smol_dsl import BodyPlan, Channel
+from smol_dsl import Anatomy, Channel
 from smol_dsl.language.symbolic import T
 
 RTOL, ATOL = 1e-4, 1e-5  # float32 evaluation against exact values
@@ -581,28 +581,28 @@ def test_one_channel_files_equal_their_gear_only_form(spec: ScheduleSpec, seed: 
 
 @settings(max_examples=10, **COMMON)
 @given(multi_channel_schedules(max_body=1), st.data())
-def test_check_body_accepts_exactly_the_bodies_that_have_every_target(multi: MultiChannelSpec, data):
+def test_check_targets_accepts_exactly_the_bodies_that_have_every_target(multi: MultiChannelSpec, data):
     schedule = smol_dsl.parse(multi.text, path="m.sched")
     actuators = sorted({t for c in multi.channels if c.kind == "gear" for t in c.targets})
     links = sorted({t for c in multi.channels if c.kind == "mass" for t in c.targets})
-    schedule.check_body(BodyPlan(tuple(actuators), tuple(links)), "toy")
+    schedule.check_targets(Anatomy(tuple(actuators), tuple(links)).targets(), "toy")
     targeted = [c for c in multi.channels if c.targets]
     if not targeted:
-        schedule.check_body(None, "toy")
+        schedule.check_targets(None, "toy")
         return
     channel = data.draw(st.sampled_from(targeted))
     missing = data.draw(st.sampled_from(channel.targets))
     actuators = [a for a in actuators if a != missing or channel.kind != "gear"]
     links = [link for link in links if link != missing or channel.kind != "mass"]
     with pytest.raises(smol_dsl.ScheduleError) as caught:
-        schedule.check_body(BodyPlan(tuple(actuators), tuple(links)), "toy")
+        schedule.check_targets(Anatomy(tuple(actuators), tuple(links)).targets(), "toy")
     error = caught.value
     # the first channel, in declared order, that names a target the body lacks
     first = next(k for k, c in enumerate(multi.channels) if c.kind == channel.kind and missing in c.targets)
     assert error.line == multi.render()[1][f"{first}/channel"] and f"`{missing}`" in error.message
     assert str(error).startswith(f"m.sched:{error.line}:{error.column}: error: task toy has no ")
     with pytest.raises(smol_dsl.ScheduleError, match="does not list its"):
-        schedule.check_body(None, "toy")
+        schedule.check_targets(None, "toy")
 
 
 @settings(max_examples=40, **COMMON)

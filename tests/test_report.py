@@ -13,8 +13,9 @@ import pytest
 
 from smol_dsl.cli import main
 from smol_dsl.results.report import ReportError, load_runs, pvalue_table, write_report
-from smol_dsl.results.rundir import ARCHIVE_FILE, METRICS_FILE, MetricsLog, write_archive
+from smol_dsl.rundir import ARCHIVE_FILE, METRICS_FILE, MetricsLog, write_archive
 from smol_dsl.runner import preset_config
+from smol_dsl.tasks import task_spec
 
 SETTINGS = dict(evaluations=16 * 13, batch_size=16, num_phases=10, num_centroids=32, episode_length=20)
 
@@ -30,7 +31,7 @@ def write_run(
     finished: bool = True,
     **overrides: object,
 ) -> Path:
-    """A run directory in the runner's format (written by smol_dsl.results.rundir's writers) whose
+    """A run directory in the runner's format (written by smol_dsl.rundir's writers) whose
     last row has the given final scores."""
     config = preset_config(task, "quick", seed=seed, **{**SETTINGS, **overrides})
     sched = library[schedule]
@@ -65,8 +66,8 @@ def write_run(
         {
             "genotypes/params/Dense_0/kernel": np.zeros((cells, 2, 2)),
             "fitnesses": fitnesses,
-            "descriptors": rng.uniform(size=(cells, 2)),
-            "centroids": rng.uniform(size=(cells, 2)),
+            "descriptors": rng.uniform(size=(cells, task_spec(task).descriptor_size)),
+            "centroids": rng.uniform(size=(cells, task_spec(task).descriptor_size)),
         },
     )
     return directory

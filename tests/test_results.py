@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from test_report import write_run
 
-from smol_dsl.results import rundir
+from smol_dsl import rundir
 from smol_dsl.results.figures import save_run_figures
-from smol_dsl.results.rundir import (
+from smol_dsl.rundir import (
     METRIC_FIELDS,
     METRICS_SCHEMA,
     Column,
@@ -100,7 +100,7 @@ def test_metrics_log_append_error_names_the_file(tmp_path, monkeypatch):
     def full_disk(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")  # as a close on a full disk: no file name
 
-    monkeypatch.setattr(rundir, "open", full_disk, raising=False)
+    monkeypatch.setattr(rundir.metrics, "open", full_disk, raising=False)
     with pytest.raises(OSError) as caught:
         log.append(rows_of(METRICS_SCHEMA)[1])
     assert caught.value.filename == str(path) and caught.value.errno == errno.ENOSPC
@@ -148,15 +148,19 @@ def test_archive_round_trip_without_jax(tmp_path, library):
         write_archive(tmp_path / "x.npz", {**arrays, "extra": np.zeros(1)})
 
 
-def test_run_figures_from_plain_data(tmp_path, library):
-    run = read_run(write_run(tmp_path / "run", library, "human", 0, {"max_fitness": 1.0}))
-    out = tmp_path / "figures"
-    out.mkdir()
-    archive = {"fitnesses": run.archive.fitnesses, "centroids": run.archive.centroids}
-    written = save_run_figures(out, run.rows, archive, ((0.0, 0.0), (1.0, 1.0)), run.config, library["human"])
+def test_run_figures_from_the_run_directory(tmp_path, library):
+    out = write_run(tmp_path / "run", library, "human", 0, {"max_fitness": 1.0})
+    before = sorted(p.name for p in out.iterdir())
+    written = save_run_figures(out)
     assert [p.name for p in written] == ["metrics.png", "archive.png"]
     assert all(p.read_bytes().startswith(b"\x89PNG") for p in written)
-    assert sorted(p.name for p in out.iterdir()) == ["archive.png", "metrics.png"]  # no temporary file left
+    assert sorted(p.name for p in out.iterdir()) == sorted([*before, "archive.png", "metrics.png"])  # no temporary file
+
+
+def test_run_figures_wait_for_the_run_to_finish(tmp_path, library):
+    out = write_run(tmp_path / "run", library, "human", 0, {"max_fitness": 1.0}, finished=False)
+    with pytest.raises(RunDirectoryError, match="has not finished"):
+        save_run_figures(out)
 
 
 def test_runner_docs_hold_the_format_tables():
@@ -189,7 +193,7 @@ def heavy_modules(code: str) -> list[str]:
 
 
 def test_reading_runs_imports_no_jax():
-    assert heavy_modules("import smol_dsl.results.report, smol_dsl.results.rundir, smol_dsl.results.figures") == []
+    assert heavy_modules("import smol_dsl.results.report, smol_dsl.rundir, smol_dsl.results.figures") == []
 
 
 def test_cli_report_imports_no_jax(tmp_path, library):

@@ -122,7 +122,7 @@ def test_archive_elites_replay_to_their_fitness(human_run, task):
     archive = load_archive(human_run.out_dir)
     best = archive.best_cell
     params = jax.tree.map(lambda x: jnp.asarray(x)[None], archive.elite(best))
-    fitness, descriptor = task.scoring_fn()(params, jnp.float32(1.0), task.episode_start(human_run.config.seed))
+    fitness, descriptor = task.scoring_fn()(params, jnp.array([1.0]), task.episode_start(human_run.config.seed))
     assert float(fitness[0]) == pytest.approx(float(archive.fitnesses[best]), rel=1e-5)
     np.testing.assert_allclose(np.asarray(descriptor[0]), archive.descriptors[best], atol=1e-6)
 
@@ -349,7 +349,7 @@ def test_every_task_runs_under_every_library_schedule(library, task_name):
     )
     runnable = {}
     for name, schedule in library.items():
-        if any(task.spec.body.unknown_targets(c) for c in schedule.channels):
+        if any(task.spec.anatomy.unknown_targets(c) for c in schedule.channels):
             # leg-damage's left_leg on a body without one
             with pytest.raises(smol_dsl.ScheduleError, match=f"task {task_name} has no actuators named"):
                 run_experiment(task, schedule, config)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from smol_dsl.tasks import TaskSpec, make_task, register, task_names, task_spec
-from smol_dsl.tasks.base import deterministic_init_state, scale_gear
+from smol_dsl.tasks.base import deterministic_init_state
+from smol_dsl.tasks.body import scale_gear
 
 EPISODE = 50  # the episodes of conftest's walker and cheetah
 BATCH = 8
@@ -44,7 +45,7 @@ def _qdax_scores(qdax_name, task, params, gear_scale=None, feet=None):
 def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
     task = request.getfixturevalue(fixture)
     params = task.init_policies(jax.random.key(1), BATCH)
-    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.0), qdax_start(task))
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.array([1.0]), qdax_start(task))
     expected_fitnesses, expected_descriptors = _qdax_scores(qdax_name, task, params)
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
@@ -54,7 +55,7 @@ def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
 def test_hopper_at_alpha_one_equals_qdax_hopper_uni():
     task = make_task("hopper", episode_length=EPISODE)
     params = task.init_policies(jax.random.key(1), BATCH)
-    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.0), qdax_start(task))
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.array([1.0]), qdax_start(task))
     expected_fitnesses, expected_descriptors = _qdax_scores("hopper_uni", task, params)
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
@@ -66,10 +67,10 @@ def test_ant_uni_at_alpha_one_equals_qdax_ant_uni_with_the_lower_legs_as_feet():
     (its lower legs are unnamed links), so its descriptors are empty: the test gives QDax's
     feet-contact wrapper the four lower legs. Fitness is Brax's ant reward, as QDax's."""
     task = make_task("ant_uni", episode_length=EPISODE, hidden_layer_sizes=(64, 64))
-    lower_legs = [i for i, name in enumerate(task.spec.body.links) if name.startswith("lower_leg_")]
+    lower_legs = [i for i, name in enumerate(task.spec.anatomy.links) if name.startswith("lower_leg_")]
     assert lower_legs == [2, 4, 6, 8] and [task.env.sys.link_names[i] for i in lower_legs] == [""] * 4
     params = task.init_policies(jax.random.key(1), BATCH)
-    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.0), qdax_start(task))
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.array([1.0]), qdax_start(task))
     expected_fitnesses, expected_descriptors = _qdax_scores("ant_uni", task, params, feet=lower_legs)
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
@@ -79,7 +80,7 @@ def test_ant_uni_at_alpha_one_equals_qdax_ant_uni_with_the_lower_legs_as_feet():
 @pytest.mark.parametrize("alpha", [0.5, 1.5])
 def test_alpha_equals_plain_brax_env_with_scaled_gear(walker, alpha):
     params = walker.init_policies(jax.random.key(2), BATCH)
-    fitnesses, descriptors = walker.scoring_fn()(params, jnp.float32(alpha), qdax_start(walker))
+    fitnesses, descriptors = walker.scoring_fn()(params, jnp.array([alpha]), qdax_start(walker))
     expected_fitnesses, expected_descriptors = _qdax_scores("walker2d_uni", walker, params, gear_scale=alpha)
     np.testing.assert_allclose(np.asarray(fitnesses), expected_fitnesses, rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
@@ -89,7 +90,7 @@ def test_alpha_changes_the_physics_without_recompiling(walker):
     params = walker.init_policies(jax.random.key(4), BATCH)
     score = walker.scoring_fn()
     start = walker.episode_start(0)
-    results = [np.asarray(score(params, jnp.float32(alpha), start)[0]) for alpha in (0.6, 1.0, 1.4)]
+    results = [np.asarray(score(params, jnp.array([alpha]), start)[0]) for alpha in (0.6, 1.0, 1.4)]
     assert score._cache_size() == 1
     assert not np.allclose(results[0], results[2])
 
@@ -97,7 +98,7 @@ def test_alpha_changes_the_physics_without_recompiling(walker):
 def test_ant_omni_scores_final_position_and_energy():
     task = make_task("ant_omni", episode_length=20, hidden_layer_sizes=(16, 16))
     params = task.init_policies(jax.random.key(0), 4)
-    fitnesses, descriptors = task.scoring_fn()(params, jnp.float32(1.2), task.episode_start(0))
+    fitnesses, descriptors = task.scoring_fn()(params, jnp.array([1.2]), task.episode_start(0))
     assert descriptors.shape == (4, 2) and fitnesses.shape == (4,)
     assert np.all(np.isfinite(fitnesses)) and np.all(np.abs(np.asarray(descriptors)) <= 30.0)
     # fitness is the healthy bonus minus control and contact costs: at most 1 per step
@@ -139,15 +140,18 @@ def test_the_episode_start_comes_from_the_seed_alone(walker):
     assert not np.array_equal(np.asarray(walker.episode_start(0).obs), np.asarray(walker.episode_start(7).obs))
 
 
-def test_modulate_is_the_hook_that_changes_the_body(walker):
-    """A task whose `modulate` scales the gear by 2 alpha equals the standard task at 2 alpha."""
+def test_modulation_is_the_hook_that_changes_the_body(walker):
+    """A task whose `modulation` scales the gear by 2 alpha equals the standard task at 2 alpha."""
     import dataclasses
 
-    doubled = dataclasses.replace(walker, modulate=lambda sys, alpha: scale_gear(sys, 2 * alpha))
+    def doubled_gear(anatomy, channels):
+        return lambda sys, body: scale_gear(sys, 2 * body[0])
+
+    doubled = dataclasses.replace(walker, modulation=doubled_gear)
     params = walker.init_policies(jax.random.key(5), BATCH)
     start = walker.episode_start(0)
-    expected = walker.scoring_fn()(params, jnp.float32(1.2), start)
-    actual = doubled.scoring_fn()(params, jnp.float32(0.6), start)
+    expected = walker.scoring_fn()(params, jnp.array([1.2]), start)
+    actual = doubled.scoring_fn()(params, jnp.array([0.6]), start)
     np.testing.assert_allclose(np.asarray(actual[0]), np.asarray(expected[0]), rtol=1e-5, atol=1e-5)
 
 

@@ -3,10 +3,10 @@
 A file schedules one or more channels (physical parameters of the body: `gear`, the paper's
 alpha, `mass`, `friction`, `gravity`, or some actuators' or links' only), each proven and
 evaluated on its own. The public API is re-exported by `smol_dsl` (`load`, `parse`,
-`Schedule`, `Curve`, `Certificate`, `Channel`, `GEAR`, `BodyPlan`, `library_names`). The
+`Schedule`, `Curve`, `Certificate`, `Channel`, `GEAR`, `library_names`). The
 modules, in the order a schedule goes through them:
 
-- `channels`: the channel kinds, `Channel`, and `BodyPlan` (a task's actuators, links, groups).
+- `channels`: the channel kinds and `Channel` (a kind, and the actuators or links it is limited to).
 - `sched.lark`: the grammar, one rule per segment shape (`KEYWORD_shape`).
 - `grammar`: sched.lark completed from the shape registry; the reserved words.
 - `syntax`: text -> syntax tree (the Lark parser, its Transformer, friendly syntax errors).

@@ -12,8 +12,8 @@ the task's body, 1 being the standard body:
 - `gravity`: the gravity vector.
 
 Factors multiply: an actuator under `gear` and `gear[left_leg]` gets their product.
-A `BodyPlan` names a task's actuators and links (in the order of Brax's `sys`) and its
-groups, so that channels can be checked, and listed, without importing JAX or Brax.
+A channel's targets are names; which names a body has is the task's business
+(`smol_dsl.tasks.Anatomy`): the language checks targets against the names it is given.
 
 >>> Channel.parse("gear[left_leg]").targets
 ('left_leg',)
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 
@@ -92,55 +92,3 @@ def differing_finals(mine: Mapping[Any, float], theirs: Mapping[Any, float]) -> 
     in order of appearance; a channel a body does not list ends at 1 (the standard body)."""
     channels = dict.fromkeys([*mine, *theirs])
     return [channel for channel in channels if mine.get(channel, 1.0) != theirs.get(channel, 1.0)]
-
-
-@dataclass(frozen=True)
-class BodyPlan:
-    """The parts of a task's body that channels can name, in the order of Brax's `sys`.
-
-    `actuators[i]` names actuator i (by the joint it drives), `links[j]` link j; groups name
-    several at once (`left_leg`). A target in `[...]` is a name or a group of the kind's part.
-    """
-
-    actuators: tuple[str, ...]
-    links: tuple[str, ...]
-    actuator_groups: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
-    link_groups: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
-
-    def names(self, part: str) -> tuple[str, ...]:
-        return self.actuators if part == "actuators" else self.links
-
-    def groups(self, part: str) -> Mapping[str, tuple[str, ...]]:
-        return self.actuator_groups if part == "actuators" else self.link_groups
-
-    def unknown_targets(self, channel: Channel) -> tuple[str, ...]:
-        """The channel's targets that are neither a name nor a group of its kind's part."""
-        part = CHANNEL_KINDS[channel.kind].part
-        if part is None:
-            return channel.targets
-        known = set(self.names(part)) | set(self.groups(part))
-        return tuple(target for target in channel.targets if target not in known)
-
-    def indices(self, channel: Channel) -> tuple[int, ...] | None:
-        """Which actuators or links the channel scales (sorted), or None for all of them
-        (and for friction and gravity); ValueError for a target the body lacks."""
-        part = CHANNEL_KINDS[channel.kind].part
-        if part is None or not channel.targets:
-            return None
-        unknown = self.unknown_targets(channel)
-        if unknown:
-            raise ValueError(f"{channel.name}: no {part} named {', '.join(unknown)}; {self.describe_part(part)}")
-        names, groups = self.names(part), self.groups(part)
-        chosen: set[int] = set()
-        for target in channel.targets:
-            for name in groups.get(target, (target,)):
-                chosen.add(names.index(name))
-        return tuple(sorted(chosen))
-
-    def describe_part(self, part: str) -> str:
-        """`actuators: a, b, c; groups: left_leg (a, b)`: what a channel of this part can name."""
-        text = f"{part}: {', '.join(self.names(part))}"
-        groups = self.groups(part)
-        if groups:
-            text += "; groups: " + ", ".join(f"{g} ({', '.join(members)})" for g, members in groups.items())
-        return text

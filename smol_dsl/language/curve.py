@@ -16,7 +16,6 @@ from fractions import Fraction
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import sympy as sp
 
 from smol_dsl.errors import ScheduleError
 from smol_dsl.language.channels import GEAR, Channel
@@ -26,6 +25,7 @@ from smol_dsl.language.verify import Certificate, tail_start
 
 if TYPE_CHECKING:
     import jax
+    import sympy as sp
 
 RANDOM_BIN_TOLERANCE = 1e-4
 """Float t within this many bins below a bin edge counts as on the edge (absorbs rounding)."""
@@ -75,7 +75,7 @@ class Curve:
     """One channel's verified schedule over training progress t in [0, 1].
 
     `Schedule.curve(channel)` gives one. Its value is a factor on the standard body, 1 being
-    the standard body; `alpha` (also `value`) evaluates it, jittably:
+    the standard body; `value` evaluates it, jittably (and `phase_value(s)` per phase):
 
     >>> import smol_dsl
     >>> mass = smol_dsl.load("growth").curve("mass")
@@ -96,7 +96,7 @@ class Curve:
         """Where the curve becomes its final value for good."""
         self._table_cache: _Tables | None = None
         self._phase_table_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._phase_alphas_compiled: dict[int, Callable[..., Any]] = {}
+        self._phase_values_compiled: dict[int, Callable[..., Any]] = {}
 
     @property
     def name(self) -> str:
@@ -120,7 +120,7 @@ class Curve:
         return jax.random.fold_in(key, zlib.crc32(self.channel.name.encode()))
 
     # ------------------------------------------------------------------ JAX
-    def alpha(self, t: jax.typing.ArrayLike, key: jax.Array | None = None) -> jax.Array:
+    def value(self, t: jax.typing.ArrayLike, key: jax.Array | None = None) -> jax.Array:
         """The value at progress `t` (scalar or array, clipped to [0, 1]); jit- and vmap-able.
 
         Random segments draw from `key` (a fixed default key when None): the same key
@@ -134,7 +134,7 @@ class Curve:
         index = jnp.searchsorted(jnp.asarray(tables.starts[1:], dtype=t.dtype), t, side="right")
         return self._select(t, index, self._bin_of(t, index), key)
 
-    def phase_alpha(self, k: jax.typing.ArrayLike, num_phases: int, key: jax.Array | None = None) -> jax.Array:
+    def phase_value(self, k: jax.typing.ArrayLike, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """The value during phase `k` of `num_phases`: the curve at the phase's start, t = k / N.
 
         `k` may be traced (one compilation serves every phase); `num_phases` is static.
@@ -148,28 +148,28 @@ class Curve:
         t = k.astype(jnp.result_type(float)) / num_phases
         return self._select(t, jnp.asarray(segment_of)[k], jnp.asarray(bin_of)[k], key)
 
-    def phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> jax.Array:
+    def phase_values(self, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """The value for every phase of `num_phases`, shape (num_phases,)."""
         import jax
 
         check_phases(num_phases)
-        if num_phases not in self._phase_alphas_compiled:
+        if num_phases not in self._phase_values_compiled:
             import jax.numpy as jnp
 
-            self._phase_alphas_compiled[num_phases] = jax.jit(
-                lambda key: self.phase_alpha(jnp.arange(num_phases), num_phases, key)
+            self._phase_values_compiled[num_phases] = jax.jit(
+                lambda key: self.phase_value(jnp.arange(num_phases), num_phases, key)
             )
-        return self._phase_alphas_compiled[num_phases](default_key(key))
+        return self._phase_values_compiled[num_phases](default_key(key))
 
-    def checked_phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> np.ndarray:
-        """`phase_alphas` on the host, refused with a ScheduleError if any is not finite and positive.
+    def checked_phase_values(self, num_phases: int, key: jax.Array | None = None) -> np.ndarray:
+        """`phase_values` on the host, refused with a ScheduleError if any is not finite and positive.
 
         The certificate proves this never happens; runners call it before training anyway, so
         that a defect can never waste a run.
         """
-        alphas = np.asarray(self.phase_alphas(num_phases, key))
-        self.check_phase_values(alphas, num_phases)
-        return alphas
+        values = np.asarray(self.phase_values(num_phases, key))
+        self.check_phase_values(values, num_phases)
+        return values
 
     def check_phase_values(self, values: np.ndarray, num_phases: int) -> None:
         """Refuse this curve's phase values (host arrays) if any is not finite and positive."""
@@ -192,7 +192,7 @@ class Curve:
     ) -> Callable[[jax.typing.ArrayLike], jax.Array]:
         """An optax-style schedule: a function of the step count returning the value.
 
-        With `num_phases`, alpha is held constant within each of that many equal phases
+        With `num_phases`, the value is held constant within each of that many equal phases
         (as the runner does); otherwise it follows the smooth curve.
 
         >>> import smol_dsl
@@ -214,10 +214,10 @@ class Curve:
             import jax.numpy as jnp
 
             if num_phases is None:
-                return self.alpha(jnp.asarray(count) / total_steps, key)
+                return self.value(jnp.asarray(count) / total_steps, key)
             boundaries = jnp.asarray(first_steps, dtype=jnp.int32)
             phase = jnp.searchsorted(boundaries, jnp.asarray(count, dtype=jnp.int32), side="right")
-            return self.phase_alpha(phase, num_phases, key)
+            return self.phase_value(phase, num_phases, key)
 
         return schedule
 
@@ -334,10 +334,6 @@ class Curve:
                 formulas=tuple(formulas),
             )
         return self._table_cache
-
-    def value(self, t: jax.typing.ArrayLike, key: jax.Array | None = None) -> jax.Array:
-        """The value at progress `t`: `alpha`, under the name that suits every channel."""
-        return self.alpha(t, key)
 
     def __repr__(self) -> str:
         c = self.certificate

@@ -6,17 +6,16 @@ from __future__ import annotations
 import difflib
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from fractions import Fraction
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, BodyPlan, Channel, differing_finals
+from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel, differing_finals
 from smol_dsl.language.compiler import compile_program
 from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
@@ -26,6 +25,7 @@ from smol_dsl.language.verify import Certificate, verify
 
 if TYPE_CHECKING:
     import jax
+    import sympy as sp
 
 _CONSTANT_TEXT = "0% .. 100%: tail\n"
 
@@ -98,6 +98,13 @@ class Schedule:
         """Each declared channel's certificate, in declared order."""
         return {channel: curve.certificate for channel, curve in self._curves.items()}
 
+    def certificates_text(self) -> str:
+        """The certificates as `smol-dsl check` prints them: one per channel, each under a
+        `channel NAME:` line when there are several."""
+        if len(self._curves) == 1:
+            return str(next(iter(self._curves.values())).certificate)
+        return "\n".join(f"channel {channel.name}:\n{curve.certificate}" for channel, curve in self._curves.items())
+
     @property
     def final_body(self) -> dict[Channel, float]:
         """Each declared channel's final value: the body the run ends on (1: the standard one)."""
@@ -109,16 +116,21 @@ class Schedule:
         the same body, so that their runs compare."""
         return [channel.name for channel in differing_finals(self.final_body, other.final_body)]
 
-    def check_body(self, plan: BodyPlan | None, task: str) -> None:
-        """Refuse, with a located ScheduleError, channels that name actuators or links the
-        task's body lacks, or any target when the task does not describe its body (`plan` None)."""
+    def check_targets(
+        self, targets: Mapping[str, Collection[str]] | None, task: str, listing: Mapping[str, str] | None = None
+    ) -> None:
+        """Refuse, with a located ScheduleError, a channel target that is not among
+        `targets[part]` (for each part channels name, "actuators" and "links": every name and
+        group the task's body has), or any target when `targets` is None (a task that does not
+        list its body). `task` names the task in messages; `listing[part]` says what it has,
+        for the hint (`smol_dsl.tasks.Anatomy.targets` and `listing` give both)."""
         for channel in self.channels:
             if not channel.targets:
                 continue
             place = self._symbolic[channel].place
             assert place is not None, "a channel with targets has a `channel` line"
             part = CHANNEL_KINDS[channel.kind].part or "parts"
-            if plan is None:
+            if targets is None:
                 raise ScheduleError(
                     f"task {task} does not list its {part}, so `{channel.name}` cannot name them",
                     span=_joined(place.target_spans),
@@ -126,16 +138,17 @@ class Schedule:
                     source=self.source,
                     path=self.path,
                 )
-            unknown = plan.unknown_targets(channel)
+            known = list(targets.get(part, ()))
+            unknown = [target for target in channel.targets if target not in known]
             if not unknown:
                 continue
             target = unknown[0]
-            known = [*plan.names(part), *plan.groups(part)]
             close = difflib.get_close_matches(target, known, n=1)
+            what = (listing or {}).get(part, f"{part}: {', '.join(known)}")
             raise ScheduleError(
                 f"task {task} has no {part} named `{target}`",
                 span=place.target_spans[channel.targets.index(target)],
-                hint=(f"did you mean `{close[0]}`? " if close else "") + f"{task}'s {plan.describe_part(part)}",
+                hint=(f"did you mean `{close[0]}`? " if close else "") + f"{task}'s {what}",
                 source=self.source,
                 path=self.path,
             )
@@ -156,7 +169,7 @@ class Schedule:
         columns = []
         for channel in self._chosen(channels):
             if channel in self._curves:
-                columns.append(self._curves[channel].phase_alpha(k, num_phases, key))
+                columns.append(self._curves[channel].phase_value(k, num_phases, key))
             else:
                 columns.append(jnp.ones(jnp.shape(k), dtype=jnp.result_type(float)))
         return jnp.stack(columns, axis=-1)
@@ -166,14 +179,14 @@ class Schedule:
     ) -> jax.Array:
         """Each channel's value for every phase, shape (num_phases, C) for `channels` (default
         `self.channels`; one the file does not declare is 1.0 throughout). Column c is
-        `curve(channels[c]).phase_alphas(num_phases, key)`, bit for bit."""
+        `curve(channels[c]).phase_values(num_phases, key)`, bit for bit."""
         import jax.numpy as jnp
 
         check_phases(num_phases)
         columns = []
         for channel in self._chosen(channels):
             if channel in self._curves:
-                columns.append(self._curves[channel].phase_alphas(num_phases, key))
+                columns.append(self._curves[channel].phase_values(num_phases, key))
             else:
                 columns.append(jnp.ones((num_phases,), dtype=jnp.result_type(float)))
         return jnp.stack(columns, axis=1)
@@ -182,7 +195,7 @@ class Schedule:
         self, num_phases: int, key: jax.Array | None = None, channels: Sequence[Channel | str] | None = None
     ) -> np.ndarray:
         """`phase_values` on the host, refused with a located ScheduleError if any value is not
-        finite and positive (as `checked_phase_alphas`)."""
+        finite and positive (which the certificates prove cannot happen)."""
         chosen = self._chosen(channels)
         values = np.asarray(self.phase_values(num_phases, key, chosen))
         for column, channel in enumerate(chosen):
@@ -198,6 +211,8 @@ class Schedule:
         return num_phases - math.ceil(self.tail_start * num_phases)
 
     # ------------------------------------------------------------------ plain gear: the paper's alpha
+    # The front door for plain gear: each is `curve(GEAR)`'s, the same per-channel evaluation
+    # as `phase_values` (1 throughout in a file that does not schedule plain gear).
     @property
     def _gear(self) -> Curve:
         return self.curve(GEAR)
@@ -223,7 +238,7 @@ class Schedule:
         Random segments draw from `key` (a fixed default key when None): the same key
         always gives the same schedule.
         """
-        return self._gear.alpha(t, key)
+        return self._gear.value(t, key)
 
     def phase_alpha(self, k: jax.typing.ArrayLike, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """alpha during phase `k` of `num_phases`: the curve at the phase's start, t = k / N.
@@ -232,11 +247,11 @@ class Schedule:
         Which segment and which random draw a phase gets is decided in exact rational
         arithmetic, so phase 90 of 100 is exactly at the 90% boundary.
         """
-        return self._gear.phase_alpha(k, num_phases, key)
+        return self._gear.phase_value(k, num_phases, key)
 
     def phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> jax.Array:
         """alpha for every phase of `num_phases`, shape (num_phases,)."""
-        return self._gear.phase_alphas(num_phases, key)
+        return self._gear.phase_values(num_phases, key)
 
     def checked_phase_alphas(self, num_phases: int, key: jax.Array | None = None) -> np.ndarray:
         """`phase_alphas` on the host, refused with a ScheduleError if any is not finite and positive.
@@ -244,7 +259,7 @@ class Schedule:
         The certificate proves this never happens; runners call it before training anyway, so
         that a defect can never waste a run.
         """
-        return self._gear.checked_phase_alphas(num_phases, key)
+        return self._gear.checked_phase_values(num_phases, key)
 
     def as_optax(
         self, total_steps: int, *, num_phases: int | None = None, key: jax.Array | None = None

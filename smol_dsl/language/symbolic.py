@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import sympy as sp
 
-from smol_dsl.errors import Span
 from smol_dsl.language.channels import GEAR, Channel
 
 if TYPE_CHECKING:
+    from smol_dsl.errors import Span
     from smol_dsl.language.shapes import Shape
 
 T = sp.Symbol("t", real=True)

@@ -10,10 +10,9 @@ from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import TYPE_CHECKING, Literal
 
-from smol_dsl.errors import Span
-from smol_dsl.language.channels import Channel
-
 if TYPE_CHECKING:
+    from smol_dsl.errors import Span
+    from smol_dsl.language.channels import Channel
     from smol_dsl.language.shapes import Shape
 
 # ---------------------------------------------------------------- expressions

@@ -6,8 +6,8 @@ by side); and the line styles and legend placement they share.
 Figures are `matplotlib.figure.Figure`s made directly, never through pyplot, so no
 matplotlib backend is selected or switched anywhere: `save_figure` (or `figure.savefig`)
 renders PNG, SVG or PDF by the file's suffix. Everything is drawn from plain data (metrics
-rows, numpy arrays, descriptor bounds, a RunConfig, a Schedule); nothing imports Brax, and
-JAX only inside `schedule_figure`, which evaluates schedules.
+rows, numpy arrays, descriptor bounds, a run directory's record, a Schedule); nothing imports
+Brax, and JAX only inside `schedule_figure`, which evaluates schedules.
 """
 
 from __future__ import annotations
@@ -25,22 +25,24 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from smol_dsl.language.channels import GEAR
-from smol_dsl.results.rundir import (
+from smol_dsl.rundir import (
+    ALPHA,
     ARCHIVE_FIGURE,
     METRICS_FIGURE,
     METRICS_SCHEMA,
     SCORES,
-    FinalArchive,
-    RunRecord,
-    alpha_one_evaluations,
+    RunDirectoryError,
+    column_name,
+    read_run,
 )
+from smol_dsl.tasks import descriptor_bounds
 
 if TYPE_CHECKING:
     import jax
 
-    from smol_dsl import Schedule
     from smol_dsl.language.channels import Channel
-    from smol_dsl.runner.config import RunConfig
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir import FinalArchive, RunRecord
 
 FIGURE_FORMATS = (".png", ".svg", ".pdf")
 PAPER_FIGURE = ("vanilla", "smol", "smol-reverse", "human")
@@ -145,10 +147,10 @@ def _draw_channel(
     phase_starts = np.arange(num_phases + 1) / num_phases * 100
     for schedule, style in zip(schedules, styles, strict=True):
         curve = schedule.curve(channel)
-        steps = np.asarray(curve.phase_alphas(num_phases, key))
+        steps = np.asarray(curve.phase_values(num_phases, key))
         label = legend_label(schedule.name)
         axes.step(phase_starts, np.append(steps, steps[-1]), where="post", lw=2.0, label=label, **style)
-        smooth = np.asarray(curve.alpha(jnp.asarray(smooth_t), key))
+        smooth = np.asarray(curve.value(jnp.asarray(smooth_t), key))
         axes.plot(smooth_t * 100, smooth, color=style["color"], ls=style["ls"], lw=1.0, alpha=0.45)
     gear = channel.quantity == "alpha"
     symbol = "α" if gear else channel.name
@@ -190,23 +192,23 @@ def save_figure(figure: Figure, out: str | Path, *, dpi: int = 150) -> Path:
 
 
 # ---------------------------------------------------------------------------- a run's figures
-def metrics_figure(rows: Sequence[Mapping[str, Any]], config: RunConfig, schedule: Schedule, title: str) -> Figure:
+def metrics_figure(run: RunRecord, title: str) -> Figure:
     """Max fitness, coverage and QD score over training evaluations, with the body beside
     them (alpha, and every other scheduled channel's factor); a dashed line where the body
     becomes the final one for good."""
+    rows = run.rows
     figure = Figure(figsize=(11, 3.4), layout="constrained")
     axes = figure.subplots(1, len(SCORES) + 1)
     evaluations = np.asarray([r["evaluations"] for r in rows], dtype=float)
-    first_tail_phase = config.num_phases - schedule.tail_phases(config.num_phases)
-    final_from = alpha_one_evaluations(rows, first_tail_phase)  # evaluations when the body is final
-    channels = [name for name in rows[0] if name not in METRICS_SCHEMA.names]
-    body = ["alpha", *channels] if GEAR in schedule.channels or not channels else channels
+    final_from = run.alpha_one_evaluations()  # evaluations when the body is final
+    others = [column_name(channel) for channel in run.channels if channel != GEAR]
+    body = ([ALPHA] if GEAR in run.channels or not others else []) + others
     for ax, name in zip(axes, (*SCORES, "body"), strict=True):
         if name == "body":
             for column in body:
                 values = np.asarray([r[column] for r in rows], dtype=float)
                 ax.plot(evaluations, values, lw=1.4, drawstyle="steps-post", label=column)
-            ax.set_ylabel(METRICS_SCHEMA["alpha"].axis_label if body == ["alpha"] else "factor")
+            ax.set_ylabel(METRICS_SCHEMA[ALPHA].axis_label if body == [ALPHA] else "factor")
             if len(body) > 1:
                 ax.legend(fontsize=7)
         else:
@@ -369,23 +371,25 @@ def archive_figure(
     return figure
 
 
-def save_run_figures(
-    directory: Path,
-    rows: Sequence[Mapping[str, Any]],
-    archive: Mapping[str, np.ndarray] | None,
-    bounds: tuple[Sequence[float], Sequence[float]] | None,
-    config: RunConfig,
-    schedule: Schedule,
-) -> list[Path]:
-    """metrics.png and, for an `archive` (its host arrays: `fitnesses` and `centroids`, as
-    `write_archive` takes them) of a task with descriptor `bounds` (low, high), archive.png,
-    in the run directory; each written atomically (a run killed meanwhile leaves
-    no half-written image). Returns the files written."""
+def save_run_figures(directory: str | Path) -> list[Path]:
+    """A finished run directory's metrics.png and, for a task with descriptors, archive.png,
+    drawn from its files (`read_run`: metrics.csv, certificate.json, archive.npz), each
+    written atomically (a process killed meanwhile leaves no half-written image). Returns the
+    files written; a RunDirectoryError for a directory that cannot be read or a run that has
+    not finished."""
     directory = Path(directory)
-    title = f"{config.task} - {legend_label(schedule.name)} - seed {config.seed}"
-    written = [save_figure(metrics_figure(rows, config, schedule, title), directory / METRICS_FIGURE, dpi=120)]
-    if archive is not None and bounds is not None and len(bounds[0]) >= 1:
-        figure = archive_figure(archive["fitnesses"], archive["centroids"], bounds[0], bounds[1], title)
+    run = read_run(directory)
+    if not run.finished:
+        raise RunDirectoryError(
+            f"{directory}: the run has not finished (generation {run.final['generation']} of "
+            f"{run.config.generations}); its figures are drawn once it has"
+        )
+    title = f"{run.task} - {legend_label(run.schedule)} - seed {run.seed}"
+    written = [save_figure(metrics_figure(run, title), directory / METRICS_FIGURE, dpi=120)]
+    low, high = descriptor_bounds(run.task)
+    if len(low) >= 1:
+        archive = run.final_archive()
+        figure = archive_figure(archive.fitnesses, archive.centroids, low, high, title)
         written.append(save_figure(figure, directory / ARCHIVE_FIGURE, dpi=120))
     return written
 

@@ -1,7 +1,7 @@
 """The paper's analysis of finished runs: the U-test table, and the report's files.
 
 `load_runs(paths)` finds run directories (written by `smol-dsl run` or `sweep`), reads and
-checks every one of them (`smol_dsl.results.rundir.read_run`: its config.json, certificate
+checks every one of them (`smol_dsl.rundir.read_run`: its config.json, certificate
 and schedule, every row of metrics.csv, and its final archive.npz), checks that they can be
 compared (one task, the same settings, finished, no run counted twice), and groups them by
 schedule. `pvalue_table` gives, for every pair of schedules, the one-sided Mann-Whitney U
@@ -27,7 +27,7 @@ import numpy as np
 from smol_dsl.errors import UserInputError
 from smol_dsl.language.channels import differing_finals
 from smol_dsl.results.figures import archives_figure, results_figure
-from smol_dsl.results.rundir import (
+from smol_dsl.rundir import (
     CONFIG_FILE,
     METRICS_FILE,
     METRICS_SCHEMA,

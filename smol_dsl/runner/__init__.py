@@ -13,11 +13,12 @@ from __future__ import annotations
 from importlib import import_module
 from typing import Any
 
-from smol_dsl.runner.config import PRESETS, RunConfig, RunError, check_config, preset_config
+from smol_dsl.rundir.config import RunConfig
+from smol_dsl.runner.config import PRESETS, RunError, check_config, preset_config
 
 _LAZY = {
-    "Archive": "smol_dsl.results.rundir",
-    "load_archive": "smol_dsl.results.rundir",
+    "Archive": "smol_dsl.rundir",
+    "load_archive": "smol_dsl.rundir",
     "RunResult": "smol_dsl.runner.training",
     "schedule_key": "smol_dsl.runner.training",
     "run_experiment": "smol_dsl.runner.run",

@@ -27,7 +27,7 @@ import jax
 import numpy as np
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 
-from smol_dsl.results.rundir import write_npz
+from smol_dsl.rundir import write_npz
 from smol_dsl.runner.config import RunError
 
 KEYS = "keys"

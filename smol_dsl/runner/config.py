@@ -1,71 +1,23 @@
-"""Run configuration: the paper's settings, and a `quick` preset sized for a 2-core CPU.
-
-Imports neither JAX nor Brax (`report` reads config.json with it)."""
+"""A run's settings: the paper's preset, a `quick` one sized for a 2-core CPU, and the checks
+that refuse settings which cannot make a fair run. (`RunConfig` itself is the run directory's:
+`smol_dsl.rundir.config`.) Imports neither JAX nor Brax."""
 
 from __future__ import annotations
 
-import dataclasses
-import json
-from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from smol_dsl import Schedule
 from smol_dsl.errors import UserInputError
-from smol_dsl.seeds import check_seed
+from smol_dsl.rundir.config import RunConfig
 from smol_dsl.tasks import PRESET_NAMES, task_spec
 
-ISO_SIGMA = 0.005  # the paper's iso+line variation
-LINE_SIGMA = 0.05
+if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
 
 
 class RunError(UserInputError):
     """A run that cannot start or go on: bad settings, an output directory that would be lost
     or is in use, a damaged checkpoint, a disk that cannot be written. The message names the
     file or option and says what to do."""
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """Everything that determines a run, besides the schedule's text.
-
-    `evaluations` is the training budget (offspring evaluated, the initial population
-    included); re-evaluations at phase boundaries are counted separately.
-    """
-
-    task: str
-    evaluations: int
-    batch_size: int
-    num_phases: int
-    num_centroids: int
-    episode_length: int
-    hidden_layer_sizes: tuple[int, ...]
-    seed: int = 0
-    iso_sigma: float = ISO_SIGMA
-    line_sigma: float = LINE_SIGMA
-    num_init_cvt_samples: int = 50_000
-    preset: str = "custom"
-
-    def __post_init__(self) -> None:
-        # only seeds 0 .. 2**32 - 1 give distinct runs (smol_dsl.seeds); a SeedError otherwise
-        object.__setattr__(self, "seed", check_seed(self.seed))
-
-    @property
-    def generations(self) -> int:
-        """Generations after the initial population (which is generation 0)."""
-        return self.evaluations // self.batch_size - 1
-
-    def phase_of_generation(self, generation: int) -> int:
-        """The phase that generation g (1..generations) trains in: equal shares, in order."""
-        return ((generation - 1) * self.num_phases) // self.generations
-
-    def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
-
-    @classmethod
-    def from_json(cls, text: str) -> RunConfig:
-        data = json.loads(text)
-        data["hidden_layer_sizes"] = tuple(data["hidden_layer_sizes"])
-        return cls(**data)
 
 
 # The paper (Table "Hyperparameters for each task"): 1e7 evaluations, 100 phases, 1024 CVT
@@ -91,7 +43,7 @@ def preset_config(task: str, preset: str = "quick", **overrides: Any) -> RunConf
 def check_config(config: RunConfig, schedule: Schedule) -> None:
     """Raise ValueError, with a fix, for settings that cannot make a fair run, and a
     ScheduleError, located, for a channel naming actuators or links the task lacks."""
-    schedule.check_body(task_spec(config.task).body, config.task)
+    task_spec(config.task).check_schedule(schedule)
     for name, value, least in (
         ("--evals", config.evaluations, 1),
         ("--batch-size", config.batch_size, 1),

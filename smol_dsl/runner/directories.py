@@ -17,13 +17,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from smol_dsl import Schedule
-from smol_dsl.results.rundir import CONFIG_FILE, LOCK_FILE, SCHEDULE_FILE, SWEEP_FILE, write_run_files, write_text
+from smol_dsl.rundir import CONFIG_FILE, LOCK_FILE, SCHEDULE_FILE, SWEEP_FILE, RunConfig, write_run_files, write_text
 from smol_dsl.runner.checkpoint import write_failure
-from smol_dsl.runner.config import RunConfig, RunError
+from smol_dsl.runner.config import RunError
 from smol_dsl.runner.lock import DirectoryLock
 
 if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
     from smol_dsl.runner.training import PlannedRun
 
 

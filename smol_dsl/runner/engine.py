@@ -4,8 +4,8 @@
 settings but its own seed, schedule and archive, and all runs reach their phase boundaries
 together. So one jitted program advances every run by one generation
 (`RunStep.generation`), and one re-evaluates every archive (`RunStep.reevaluate_chunk`),
-with each run's body (the factors of the schedules' channels: alpha, mass, friction, ...)
-a traced array. With `jax.shard_map` over a (runs, population) device mesh, runs are split
+with each run's body (a (C,) array of the factors of the schedules' channels: plain gear's
+alpha, mass, friction, ...) a traced input. With `jax.shard_map` over a (runs, population) device mesh, runs are split
 across devices (independent: no communication), and devices left over split each offspring
 batch (its rollouts are gathered back). On each device the local runs are either vmapped
 together (accelerators: one big batch) or mapped one after another inside the program
@@ -20,20 +20,23 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import lru_cache, partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
-from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 from qdax.utils.metrics import default_qd_metrics
 
 from smol_dsl.language.channels import GEAR, Channel
-from smol_dsl.runner.config import RunConfig
 from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites, reevaluation_chunks
 from smol_dsl.tasks import make_task
-from smol_dsl.tasks.base import Task
+
+if TYPE_CHECKING:
+    from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
+
+    from smol_dsl.rundir.config import RunConfig
+    from smol_dsl.tasks.base import Task
 
 RUNS = "runs"
 POPULATION = "population"
@@ -82,10 +85,8 @@ class Engine:
         num_runs: int | None = None,
         channels: tuple[Channel, ...] = (GEAR,),
     ) -> None:
-        self.channels = tuple(channels)
-        # the body of plain gear alone is alpha, which the task takes itself (its own `modulate`)
-        self._alpha_only = self.channels == (GEAR,)
-        self.task = task = task if self._alpha_only else task.with_channels(self.channels)
+        self.task = task = task.with_channels(channels)
+        self.channels = task.channels
         self.batch_size = batch_size
         devices = list(devices) if devices is not None else jax.local_devices()
         self.runs_per_step = default_runs_per_step(devices) if runs_per_step == -1 else runs_per_step
@@ -129,8 +130,6 @@ class Engine:
     def _score(self, genotypes: Any, body: jax.Array, start: Any) -> tuple[jax.Array, jax.Array]:
         """Score one run's batch in its body; along the population axis each device rolls out
         its share, and the shares are gathered in order."""
-        if self._alpha_only:
-            body = body[0]
         shares = self.population_devices
         if shares == 1:
             return self.task.score(genotypes, body, start)

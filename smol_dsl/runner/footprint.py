@@ -25,9 +25,10 @@ import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from smol_dsl.runner.config import RunConfig
+if TYPE_CHECKING:
+    from smol_dsl.rundir.config import RunConfig
 
 FLOAT_BYTES = 4
 POLICY_COPIES = 6  # policy parameters alive per offspring in a generation (measured; see the docstring)

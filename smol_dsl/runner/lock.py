@@ -19,7 +19,7 @@ import socket
 import warnings
 from pathlib import Path
 
-from smol_dsl.results.rundir import LOCK_FILE
+from smol_dsl.rundir import LOCK_FILE
 from smol_dsl.runner.config import RunError
 
 try:

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from smol_dsl import Schedule
-from smol_dsl.results.rundir import METRIC_FIELDS
-from smol_dsl.runner.config import RunConfig
-from smol_dsl.runner.training import RunResult
+from smol_dsl.rundir import METRIC_FIELDS
+
+if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir.config import RunConfig
+    from smol_dsl.runner.training import RunResult
 
 
 class ProgressBar:

@@ -12,18 +12,21 @@ import contextlib
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 
-from smol_dsl import Schedule
-from smol_dsl.results.rundir import CHECKPOINT_FILE
-from smol_dsl.runner.config import RunConfig, RunError
+if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir.config import RunConfig
+    from smol_dsl.tasks.base import Task
+
+from smol_dsl.rundir import CHECKPOINT_FILE
+from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_run_directory, run_name
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import fit_sweep
 from smol_dsl.runner.training import PlannedRun, RunResult, check_bodies, schedule_key, train
-from smol_dsl.tasks.base import Task
 
 __all__ = ["RunError", "RunResult", "run_experiment", "schedule_key"]
 

@@ -14,17 +14,21 @@ import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import jax
 
-from smol_dsl import Schedule
-from smol_dsl.results.rundir import SWEEP_CHECKPOINT_FILE
-from smol_dsl.runner.config import RunConfig, RunError
+if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir.config import RunConfig
+    from smol_dsl.tasks.base import Task
+
+from smol_dsl.rundir import SWEEP_CHECKPOINT_FILE
+from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_sweep_directory, run_name
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import fit_sweep
 from smol_dsl.runner.training import PlannedRun, Progress, RunResult, check_bodies, run_channels, train
-from smol_dsl.tasks.base import Task
 
 
 def plan_sweep(schedules: Sequence[Schedule], seeds: Sequence[int], config: RunConfig) -> list[PlannedRun]:

@@ -2,8 +2,8 @@
 
 `train` is what `run_experiment` (one run) and `run_sweep` (many) both do once their
 directories are set up. Phase k of N trains in the body of each run's schedule at phase k:
-every scheduled channel's factor at t = k / N (`Schedule.checked_phase_values`; alpha, the
-actuators' gear, for a file that declares no channels), a traced (channels,) array per
+every scheduled channel's factor at t = k / N (`Schedule.checked_phase_values`; `(GEAR,)`,
+the paper's alpha, for a file that declares no channels), a traced (channels,) array per
 run. At each phase boundary every archive is re-evaluated under its new body, thinned by
 its schedule's extinction probability and re-inserted into a fresh archive; a checkpoint
 is handed to the background writer right after, so an interrupted training resumes from
@@ -18,16 +18,15 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from smol_dsl import Schedule
+from smol_dsl import rundir
 from smol_dsl.language.channels import GEAR, Channel
-from smol_dsl.results import rundir
-from smol_dsl.results.rundir import CHECKPOINT_FILE, MetricsLog
+from smol_dsl.rundir import CHECKPOINT_FILE, MetricsLog
 from smol_dsl.runner.checkpoint import (
     CheckpointWriter,
     RunState,
@@ -37,10 +36,15 @@ from smol_dsl.runner.checkpoint import (
     save_checkpoint,
     storage_error,
 )
-from smol_dsl.runner.config import RunConfig
-from smol_dsl.runner.engine import Engine, stack_runs
+from smol_dsl.runner.engine import stack_runs
 from smol_dsl.runner.map_elites import cvt_centroids
-from smol_dsl.tasks.base import Task
+from smol_dsl.tasks import task_spec
+
+if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir.config import RunConfig
+    from smol_dsl.runner.engine import Engine
+    from smol_dsl.tasks.base import Task
 
 Progress = Callable[[list[dict[str, Any]], int], None]
 """progress(the latest metrics row of every run, total generations)."""
@@ -58,20 +62,27 @@ class PlannedRun:
 
 @dataclass(frozen=True)
 class RunResult:
-    """What a finished run returns: its final archive, its metrics log and where it is."""
+    """What a finished run returns: its final archive, its metrics log, the body it trained in
+    at every phase and where it is."""
 
     repertoire: Any  # qdax MapElitesRepertoire
     metrics: list[dict[str, Any]]
     config: RunConfig
-    alphas: np.ndarray  # (phases,): the actuators' gear factor (alpha) per phase
+    bodies: np.ndarray  # (phases, channels): the body of every phase, a factor per channel
+    channels: tuple[Channel, ...]  # the schedule's channels, the columns of `bodies`
     out_dir: Path | None
     seconds: float
-    values: np.ndarray | None = None  # (phases, channels): every channel's factor per phase
-    channels: tuple[Channel, ...] = (GEAR,)
 
     @property
     def final(self) -> dict[str, Any]:
         return self.metrics[-1]
+
+    @property
+    def alphas(self) -> np.ndarray:
+        """(phases,): plain gear's factor per phase, the paper's alpha (1 when not scheduled)."""
+        if GEAR in self.channels:
+            return self.bodies[:, self.channels.index(GEAR)]
+        return np.ones(len(self.bodies), self.bodies.dtype)
 
 
 def run_channels(schedules: list[Schedule]) -> tuple[Channel, ...]:
@@ -83,11 +94,9 @@ def run_channels(schedules: list[Schedule]) -> tuple[Channel, ...]:
 def check_bodies(task: Task | str, schedules: list[Schedule]) -> None:
     """A located ScheduleError for a schedule whose channels name actuators or links the
     task's body lacks (before anything is created or compiled)."""
-    from smol_dsl.tasks import task_spec
-
     spec = task_spec(task) if isinstance(task, str) else task.spec
     for schedule in schedules:
-        schedule.check_body(spec.body, spec.name)
+        spec.check_schedule(schedule)
 
 
 def schedule_key(seed: int) -> jax.Array:
@@ -114,8 +123,8 @@ def metrics_row(
     non_finite: int,
     schema: rundir.MetricsSchema = rundir.METRICS_SCHEMA,
 ) -> dict[str, Any]:
-    """The metrics.csv row of a run's state after an event; `body` holds `alpha` (the
-    actuators' gear factor) and a factor per other channel of the run's schedule."""
+    """The metrics.csv row of a run's state after an event; `body` holds the body's columns
+    (`rundir.body_columns`: `alpha`, and a factor per other channel of the run's schedule)."""
     return rundir.metrics_row(
         schema,
         generation=state.generation,
@@ -145,10 +154,11 @@ class Training:
     """Runs of one task and settings trained together on an engine, generation by generation.
 
     All runs reach their phase boundaries together. Per run: its own seed (CVT centroids,
-    episode start, keys), schedule (each channel's factor per phase, extinction) and archive;
-    the batched arrays (archives, keys, body values, starts) have the runs axis first, padded
-    to the engine's runs axis with copies of the last run whose results are dropped. The
-    engine's task takes the values of `channels` (`run_channels` of the runs' schedules).
+    episode start, keys), schedule (its body per phase, extinction) and archive; the batched
+    arrays (archives, keys, bodies, starts) have the runs axis first, padded to the engine's
+    runs axis with copies of the last run whose results are dropped. A body has a factor for
+    each of `channels` (`run_channels` of the runs' schedules; 1 for a channel a run's
+    schedule lacks), the engine's task's channels.
     """
 
     def __init__(
@@ -167,17 +177,17 @@ class Training:
         self.channels = channels if channels is not None else run_channels([run.schedule for run in runs])
         padded = runs + [runs[-1]] * (engine.padded_runs(len(runs)) - len(runs))
         seeds = [run.config.seed for run in padded]
-        self.values = np.stack(  # (runs, phases, channels)
+        self.bodies = np.stack(  # (runs, phases, channels)
             [
                 run.schedule.checked_phase_values(config.num_phases, schedule_key(run.config.seed), self.channels)
                 for run in padded
             ]
         )
-        gear = self.channels.index(GEAR) if GEAR in self.channels else None
-        self.alphas = self.values[..., gear] if gear is not None else np.ones(self.values.shape[:2], np.float32)
-        self.schemas = [rundir.metrics_schema([c.name for c in run.schedule.channels]) for run in runs]
-        # each run's own channels, as columns of the values (its metrics.csv columns and result)
-        self._own = [[self.channels.index(c) for c in run.schedule.channels] for run in runs]
+        self.schemas = [rundir.metrics_schema(run.schedule.channels) for run in runs]
+        # each run's own bodies, the columns of its schedule's channels (its metrics.csv columns and result)
+        self._own_bodies = [
+            self.bodies[r][:, [self.channels.index(c) for c in run.schedule.channels]] for r, run in enumerate(runs)
+        ]
         starts = {seed: task.episode_start(seed) for seed in dict.fromkeys(seeds)}
         self.starts = engine.put(stack_runs([starts[seed] for seed in seeds]))
         self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
@@ -230,14 +240,14 @@ class Training:
                 )
         archives = self.engine.empty_archives(jnp.stack([centroids[seed] for seed in self._seeds]))
         self.repertoires, metrics, dropped, _ = self.engine.step(
-            archives, self._values_of(0), self.starts, self.engine.put(jnp.stack(init_keys))
+            archives, self._bodies_of(0), self.starts, self.engine.put(jnp.stack(init_keys))
         )
         self.keys = self.engine.put(jnp.stack(main_keys))
         batch = self.config.batch_size
         self.states = []
         for r in range(len(self.runs)):
             state = RunState(0, 0, batch, 0, int(dropped[r]), [])
-            row = metrics_row(state, _run_metrics(metrics, r), self._body(r, 0), "init", dropped[r], self.schemas[r])
+            row = metrics_row(state, _run_metrics(metrics, r), self._columns(r, 0), "init", dropped[r], self.schemas[r])
             state.rows.append(row)
             self.states.append(state)
         if self.checkpoint is not None:
@@ -260,10 +270,10 @@ class Training:
                 self.generation(generation, phase)
 
     def reevaluate(self, phase: int) -> None:
-        """Every archive re-scored at its run's alpha of `phase`, thinned by extinction."""
+        """Every archive re-scored in its run's body of `phase`, thinned by extinction."""
         self.keys, subkeys = self.engine.split(self.keys)
         self.repertoires, evaluated, dropped = self.engine.reevaluate(
-            self.repertoires, self._values_of(phase), self.starts, self.extinctions, subkeys
+            self.repertoires, self._bodies_of(phase), self.starts, self.extinctions, subkeys
         )
         for r, state in enumerate(self.states):
             state.phase = phase
@@ -272,10 +282,10 @@ class Training:
         self._record(self.engine.metrics(self.repertoires), ["reevaluate"] * len(self.runs), dropped)
 
     def generation(self, generation: int, phase: int) -> None:
-        """One generation of every run at its alpha of `phase`."""
+        """One generation of every run in its body of `phase`."""
         self.keys, subkeys = self.engine.split(self.keys)
         self.repertoires, metrics, dropped, reseeded = self.engine.step(
-            self.repertoires, self._values_of(phase), self.starts, subkeys
+            self.repertoires, self._bodies_of(phase), self.starts, subkeys
         )
         for r, state in enumerate(self.states):
             state.generation = generation
@@ -283,22 +293,18 @@ class Training:
             state.non_finite += int(dropped[r])
         self._record(metrics, ["reseed" if reseeded[r] else "train" for r in range(len(self.runs))], dropped)
 
-    def _values_of(self, phase: int) -> jax.Array:
+    def _bodies_of(self, phase: int) -> jax.Array:
         """Every run's body in `phase`: (runs, channels) float32."""
-        return self.engine.put(jnp.asarray(self.values[:, phase], dtype=jnp.float32))
+        return self.engine.put(jnp.asarray(self.bodies[:, phase], dtype=jnp.float32))
 
-    def _body(self, run: int, phase: int) -> dict[str, float]:
-        """A run's metrics.csv body columns in a phase: alpha, and its schedule's other channels."""
-        body = {"alpha": float(self.alphas[run, phase])}
-        for channel, column in zip(self.runs[run].schedule.channels, self._own[run], strict=True):
-            if channel != GEAR:
-                body[channel.name] = float(self.values[run, phase, column])
-        return body
+    def _columns(self, run: int, phase: int) -> dict[str, float]:
+        """A run's metrics.csv body columns in a phase (its schedule's channels)."""
+        return rundir.body_columns(self.runs[run].schedule.channels, self._own_bodies[run][phase])
 
     def _record(self, metrics: dict[str, np.ndarray], events: list[str], dropped: np.ndarray) -> None:
         for r, (state, log) in enumerate(zip(self.states, self.logs, strict=True)):
-            body = self._body(r, state.phase)
-            row = metrics_row(state, _run_metrics(metrics, r), body, events[r], dropped[r], self.schemas[r])
+            columns = self._columns(r, state.phase)
+            row = metrics_row(state, _run_metrics(metrics, r), columns, events[r], dropped[r], self.schemas[r])
             state.rows.append(row)
             log.append(row)
         self._show()
@@ -314,8 +320,8 @@ class Training:
 
     def results(self, started: float) -> list[RunResult]:
         """Every run's result; when training is finished, its run directory gets archive.npz
-        and figures, and the first time, its checkpoint marked finished (and so does a
-        sweep's own checkpoint)."""
+        and, the first time, its checkpoint marked finished (and so does a sweep's own
+        checkpoint)."""
         newly_finished = self.finished and not all(state.finished for state in self.states)
         host_keys = jax.device_get(jax.random.key_data(self.keys))
         results = []
@@ -327,18 +333,17 @@ class Training:
                     single = jax.tree.map(lambda x, r=r: x[r : r + 1], self.repertoires)
                     key = jax.random.wrap_key_data(host_keys[r : r + 1])
                     save_checkpoint(run.directory / CHECKPOINT_FILE, single, key, [state], owner([run], run.config))
-                finish_run_directory(run.directory, state, repertoire, self.task, run.config, run.schedule)
+                rundir.write_archive(run.directory / rundir.ARCHIVE_FILE, archive_arrays(repertoire))
             seconds = time.perf_counter() - started
             results.append(
                 RunResult(
                     repertoire,
                     state.rows,
                     run.config,
-                    self.alphas[r],
+                    self._own_bodies[r],
+                    run.schedule.channels,
                     run.directory,
                     seconds,
-                    self.values[r][:, self._own[r]],
-                    run.schedule.channels,
                 )
             )
         run_checkpoints = {run.directory / CHECKPOINT_FILE for run in self.runs if run.directory is not None}
@@ -347,18 +352,6 @@ class Training:
                 state.finished = True
             save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
         return results
-
-
-def finish_run_directory(
-    directory: Path, state: RunState, repertoire: Any, task: Task, config: RunConfig, schedule: Schedule
-) -> None:
-    """Write a finished run's archive.npz and figures."""
-    from smol_dsl.results.figures import save_run_figures
-
-    arrays = archive_arrays(repertoire)
-    rundir.write_archive(directory / rundir.ARCHIVE_FILE, arrays)
-    bounds = (task.descriptor_low, task.descriptor_high)
-    save_run_figures(directory, state.rows, arrays, bounds, config, schedule)
 
 
 def _run_metrics(metrics: dict[str, np.ndarray], run: int) -> dict[str, float]:

@@ -11,6 +11,7 @@ import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from smol_dsl.tasks.anatomy import Anatomy
 from smol_dsl.tasks.catalog import ANT_OMNI, ANT_UNI, HALFCHEETAH, HOPPER, WALKER2D
 from smol_dsl.tasks.registry import PRESET_NAMES, TaskSpec, make_task, register, task_names, task_spec
 
@@ -65,6 +66,7 @@ def descriptor_bounds(name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
 __all__ = [
     "PRESET_NAMES",
     "TASK_NAMES",
+    "Anatomy",
     "Task",
     "TaskSizes",
     "TaskSpec",

@@ -14,10 +14,11 @@ import jax.numpy as jnp
 
 from smol_dsl.tasks.base import Task, last_valid, make_policy
 from smol_dsl.tasks.quiet import brax_environment
-from smol_dsl.tasks.registry import TaskSpec
 
 if TYPE_CHECKING:
     from brax.envs.base import State
+
+    from smol_dsl.tasks.registry import TaskSpec
 
 
 def make(

@@ -1,11 +1,11 @@
-"""α-aware QD locomotion tasks on Brax v2: the shared rollout and the `Task` record.
+"""QD locomotion tasks on Brax v2 with a changing body: the shared rollout and `Task`.
 
-A task scores a batch of MLP policies in a Brax environment whose body its `modulate`
-hook changes: by default every actuator's gear multiplied by α; `Task.with_channels` gives
-the task under several scheduled parameters (gear, mass, friction, gravity; see body.py),
-scored with a (C,) array of factors in place of α. The parameters are traced arguments of
-the scoring function, so a new body never recompiles: the environment's `sys` (Brax keeps
-physics parameters there) is replaced inside the traced computation.
+A task scores a batch of MLP policies in a Brax environment in a *body*: a (C,) array of
+factors, one per channel of `Task.channels` (by default `(GEAR,)`: every actuator's gear
+times the paper's alpha; `Task.with_channels` gives the task under other channels: gear of
+some actuators, mass, friction, gravity; see body.py). The body is a traced argument of the
+scoring function, so a new body never recompiles: the environment's `sys` (Brax keeps
+physics parameters there) is replaced inside the traced computation, by the task's hook.
 
 Rollouts follow QDax's `scoring_function_brax_envs` exactly (same deterministic initial
 state, same masking after the first `done`, descriptors from the state *before* each
@@ -24,31 +24,22 @@ from typing import TYPE_CHECKING, Any
 import jax
 import jax.numpy as jnp
 
+from smol_dsl.language.channels import GEAR, Channel
+from smol_dsl.tasks.body import Modulate, Modulation, check_channels, modulation
 from smol_dsl.tasks.quiet import import_brax
-from smol_dsl.tasks.registry import TaskSpec
 
 import_brax()  # before Brax's modules, so that MJX's Warp lines are not printed (see quiet.py)
 
-from brax.base import System  # noqa: E402
-from brax.envs.base import PipelineEnv, State  # noqa: E402
-
 if TYPE_CHECKING:
-    from smol_dsl.language.channels import Channel
+    from brax.base import System
+    from brax.envs.base import PipelineEnv, State
 
-ScoringFn = Callable[[Any, jax.Array, State], tuple[jax.Array, jax.Array]]
-"""(policy params batch, alpha or (C,) values, episode start) -> (fitnesses (B,), descriptors (B, D))."""
+    from smol_dsl.tasks.registry import TaskSpec
 
-Modulation = Callable[[System, jax.Array], System]
-"""(sys, params) -> the sys a rollout runs in: the hook that changes the body (Brax keeps
-every physics parameter in `sys`, as its `randomization_fn` does). The default's one
-parameter is alpha, the scale of every actuator's gear; `body.modulation`'s are a (C,) array."""
+ScoringFn = Callable[[Any, jax.Array, "State"], tuple[jax.Array, jax.Array]]
+"""(policy params batch, body (C,), episode start) -> (fitnesses (B,), descriptors (B, D))."""
 
 EPISODE_START = 0x7A5C  # folded into a run's seed for its episode start
-
-
-def scale_gear(sys: System, alpha: jax.Array) -> System:
-    """`sys` with every actuator's gear multiplied by alpha (works on a traced alpha)."""
-    return sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * alpha))
 
 
 def with_sys(env: PipelineEnv, sys: System) -> PipelineEnv:
@@ -79,11 +70,14 @@ def start_in_body(start: State, sys: System, standard: System) -> State:
 
 @dataclass(frozen=True, eq=False)  # compared and hashed by identity: it holds arrays
 class Task:
-    """A QD task: environment, policy network, descriptor space and α-aware scoring.
+    """A QD task: environment, policy network, descriptor space, and scoring in a body.
 
     Built from its registry spec (`smol_dsl.tasks.make_task`), which holds its name,
-    descriptor box and reward offset. The episode start is not part of the task: it comes
-    from a run's seed (`episode_start`), so every way of starting a run starts alike.
+    descriptor box, reward offset and anatomy. A body is a (C,) array of factors for
+    `channels`; `modulation(anatomy, channels)` makes the hook that turns it into `sys`
+    (`modulate`), so a task of your own changes its body by its own `modulation`, for any
+    channels. The episode start is not part of the task: it comes from a run's seed
+    (`episode_start`), so every way of starting a run starts alike.
     """
 
     spec: TaskSpec
@@ -93,8 +87,11 @@ class Task:
     state_descriptor: Callable[[State], jax.Array]  # per-step descriptor of a state
     reward: Callable[[State], jax.Array]  # per-step fitness reward of a (post-step) state
     final_descriptor: Callable[[jax.Array, jax.Array], jax.Array]  # (per-step, valid mask)
-    modulate: Modulation = scale_gear
-    channels: tuple[Channel, ...] | None = None  # what `modulate`'s values scale; None: alpha
+    channels: tuple[Channel, ...] = (GEAR,)  # what the body's factors scale, in order
+    modulation: Modulation = modulation  # (anatomy, channels) -> the hook `modulate`
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "channels", check_channels(self.spec.anatomy, self.channels))
 
     @property
     def name(self) -> str:
@@ -127,34 +124,37 @@ class Task:
         """The deterministic start of every episode of the run with this seed."""
         return deterministic_init_state(self.env, jax.random.fold_in(jax.random.key(seed), EPISODE_START))
 
+    @functools.cached_property
+    def modulate(self) -> Modulate:
+        """The hook that turns a body of this task's channels into the `sys` a rollout runs in."""
+        return self.modulation(self.spec.anatomy, self.channels)
+
     def with_channels(self, channels: Sequence[Channel | str]) -> Task:
         """This task with a body under `channels` (Channel or names like "gear[left_leg]"):
-        its `score` and `scoring_fn` take a (C,) array of factors, one per channel, in place
-        of alpha. The same channels give the same Task (and so one compilation)."""
-        from smol_dsl.language.channels import Channel
-
+        its `score` and `scoring_fn` take a (C,) array of factors, one per channel. The same
+        channels give the same Task (and so one compilation); a ValueError for channels
+        the task's anatomy lacks."""
         key = tuple(Channel.parse(c) if isinstance(c, str) else c for c in channels)
+        if key == self.channels:
+            return self
         cached = self._channel_tasks.get(key)
         if cached is None:
-            from smol_dsl.tasks.body import modulation
-
-            if self.spec.body is None:
-                raise ValueError(f"task {self.name} has no body plan: only alpha can change its body")
-            body = modulation(self.spec.body, key)
-            if self.modulate is not scale_gear:  # a task's own alpha hook gets plain gear's value
-                body = _with_own_alpha(self.modulate, body, key)
-            cached = replace(self, modulate=body, channels=key)
-            self._channel_tasks[key] = cached
+            cached = self._channel_tasks[key] = replace(self, channels=key)
         return cached
 
     @functools.cached_property
     def _channel_tasks(self) -> dict[tuple[Channel, ...], Task]:
         return {}
 
-    def rollout(self, params: Any, alpha: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
-        """Fitness and descriptor of one policy in the body `modulate` makes of alpha (or of
-        the channels' values)."""
-        sys = self.modulate(self.env.sys, alpha)
+    def rollout(self, params: Any, body: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
+        """Fitness and descriptor of one policy in `body`, a (C,) array of factors for `channels`."""
+        if jnp.shape(body) != (len(self.channels),):
+            names = ", ".join(channel.name for channel in self.channels)
+            raise ValueError(
+                f"a body of task {self.name} is a ({len(self.channels)},) array, one factor per channel ({names}), "
+                f"not of shape {jnp.shape(body)}"
+            )
+        sys = self.modulate(self.env.sys, body)
         env = with_sys(self.env, sys)
         start = start_in_body(start, sys, self.env.sys)
 
@@ -172,34 +172,19 @@ class Task:
         fitness = jnp.sum(jnp.where(valid, rewards, 0.0))
         return fitness, self.final_descriptor(descriptors, valid)
 
-    def score(self, params: Any, alpha: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
-        """Fitnesses (B,) and descriptors (B, D) of a batch of policies (not jitted: for
-        use inside other traced programs, such as the runner's per-run step)."""
-        return jax.vmap(self.rollout, in_axes=(0, None, None))(params, alpha, start)
+    def score(self, params: Any, body: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
+        """Fitnesses (B,) and descriptors (B, D) of a batch of policies in `body` (not jitted:
+        for use inside other traced programs, such as the runner's per-run step)."""
+        return jax.vmap(self.rollout, in_axes=(0, None, None))(params, body, start)
 
     def scoring_fn(self) -> ScoringFn:
-        """`score`, jitted once per task: alpha and the start are traced, so any body and
+        """`score`, jitted once per task: the body and the start are traced, so any body and
         any episode start share one compilation per batch shape."""
         return self._scoring_fn
 
     @functools.cached_property
     def _scoring_fn(self) -> ScoringFn:
         return jax.jit(self.score)
-
-
-def _with_own_alpha(own: Modulation, body: Modulation, channels: tuple[Channel, ...]) -> Modulation:
-    """A body's hook for a task with its own alpha hook: `own` gets plain gear's value (1 when
-    the channels lack it), the body's hook every other channel."""
-    from smol_dsl.language.channels import GEAR
-
-    gear = channels.index(GEAR) if GEAR in channels else None
-
-    def modulate(sys: System, values: jax.Array) -> System:
-        if gear is None:
-            return body(own(sys, jnp.ones((), values.dtype)), values)
-        return body(own(sys, values[gear]), values.at[gear].set(1))
-
-    return modulate
 
 
 def mean_over_valid(per_step: jax.Array, valid: jax.Array) -> jax.Array:

@@ -1,8 +1,9 @@
-"""Several scheduled physical parameters: a task's body under a tuple of channels.
+"""A body: a (C,) array of factors, one per scheduled channel, and the `sys` it makes.
 
-`modulation(plan, channels)` is a `Task.modulate` hook that takes a (C,) array of factors,
-one per channel, and multiplies the parameters of Brax's `System` that the `spring`
-pipeline reads:
+Everywhere below the schedule a body is that array, for a tuple of channels; plain gear
+alone (the paper's alpha) is the one-channel case `(GEAR,)`. `modulation(anatomy, channels)`
+is the default hook that turns a body into Brax's `System` (`Task.modulate`): it multiplies
+the parameters of `sys` that the `spring` pipeline reads:
 
 - gear: `sys.actuator.gear` (`actuator.to_tau` multiplies the actuator's force, bias
   included, by it);
@@ -24,31 +25,52 @@ pipeline reads:
 
 Factors of channels of the same kind multiply: an actuator under `gear` and
 `gear[left_leg]` gets their product. Only multiplications (and selecting a factor per
-actuator or link), so `modulation(plan, (GEAR,))(sys, v)` is bit for bit
-`scale_gear(sys, v[0])`.
+actuator or link), so `modulation(anatomy, (GEAR,))(sys, body)` is bit for bit
+`scale_gear(sys, body[0])`, and a body of ones leaves `sys` as it is.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from smol_dsl.language.channels import CHANNEL_KINDS, BodyPlan, Channel
-from smol_dsl.tasks.base import System
+from smol_dsl.language.channels import CHANNEL_KINDS, Channel
+
+if TYPE_CHECKING:
+    from brax.base import System
+
+    from smol_dsl.tasks.anatomy import Anatomy
+
+Modulate = Callable[["System", jax.Array], "System"]
+"""(sys, body) -> the sys a rollout runs in, for a (C,) body of the task's channels (Brax
+keeps every physics parameter in `sys`, as its `randomization_fn` does)."""
+
+Modulation = Callable[["Anatomy | None", tuple[Channel, ...]], Modulate]
+"""(anatomy, channels) -> the `Modulate` hook of a body under those channels: what a task
+uses to change its body (`Task.modulation`; `modulation` below by default)."""
 
 
-def _factor(plan: BodyPlan, channels: Sequence[Channel], values: jax.Array, kind: str, size: int) -> jax.Array | None:
+def scale_gear(sys: System, factor: jax.Array) -> System:
+    """`sys` with every actuator's gear multiplied by `factor` (a scalar, or one per
+    actuator; traced or not)."""
+    return sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * factor))
+
+
+def _factor(
+    anatomy: Anatomy | None, channels: Sequence[Channel], body: jax.Array, kind: str, size: int
+) -> jax.Array | None:
     """The product of the kind's channels' factors: a scalar (every channel covers all), a
     (size,) array (some cover only a part), or None (no channel of this kind)."""
     factor: jax.Array | None = None
     for c, channel in enumerate(channels):
         if channel.kind != kind:
             continue
-        indices = plan.indices(channel)
-        value = values[c]
+        indices = anatomy.indices(channel) if anatomy is not None else None
+        value = body[c]
         if indices is not None:
             chosen = np.zeros(size, dtype=bool)
             chosen[list(indices)] = True
@@ -57,46 +79,52 @@ def _factor(plan: BodyPlan, channels: Sequence[Channel], values: jax.Array, kind
     return factor
 
 
-def check_channels(plan: BodyPlan, channels: Sequence[Channel]) -> tuple[Channel, ...]:
-    """The channels as a tuple, or a ValueError for an unknown kind or target, or none."""
+def check_channels(anatomy: Anatomy | None, channels: Sequence[Channel]) -> tuple[Channel, ...]:
+    """The channels as a tuple, or a ValueError for none, an unknown kind, a target the
+    anatomy lacks, or any target without an anatomy."""
     channels = tuple(channels)
     if not channels:
         raise ValueError("no channels: a body needs at least one scheduled parameter")
     for channel in channels:
         if channel.kind not in CHANNEL_KINDS:
             raise ValueError(f"{channel.name}: unknown channel kind; the kinds are {', '.join(CHANNEL_KINDS)}")
-        unknown = plan.unknown_targets(channel)
+        if anatomy is None:
+            if channel.targets:
+                raise ValueError(f"{channel.name}: the task lists no anatomy, so a channel cannot name its parts")
+            continue
+        unknown = anatomy.unknown_targets(channel)
         if unknown:
             part = CHANNEL_KINDS[channel.kind].part
-            where = plan.describe_part(part) if part else f"{channel.kind} applies to the whole body"
+            where = anatomy.describe_part(part) if part else f"{channel.kind} applies to the whole body"
             raise ValueError(f"{channel.name}: cannot select {', '.join(unknown)}; {where}")
     return channels
 
 
-def modulation(plan: BodyPlan, channels: Sequence[Channel]) -> Callable[[System, jax.Array], System]:
-    """The `modulate` hook of a body under `channels`: (sys, values (C,)) -> the changed sys.
+def modulation(anatomy: Anatomy | None, channels: Sequence[Channel]) -> Modulate:
+    """The hook of a body under `channels`: (sys, body (C,)) -> the changed sys.
 
-    `plan` names the actuators and links of `sys` (in its order); values may be traced.
+    `anatomy` names the actuators and links of `sys` (in its order); without one, only
+    channels without targets can be scheduled. The body may be traced.
     """
-    channels = check_channels(plan, channels)
-    actuators, links = len(plan.actuators), len(plan.links)
+    channels = check_channels(anatomy, channels)
 
-    def modulate(sys: System, values: jax.Array) -> System:
-        if sys.actuator.gear.shape != (actuators,) or sys.link.inertia.mass.shape != (links,):
+    def modulate(sys: System, body: jax.Array) -> System:
+        actuators, links = sys.actuator.gear.shape[0], sys.link.inertia.mass.shape[0]
+        if anatomy is not None and (actuators, links) != (len(anatomy.actuators), len(anatomy.links)):
             raise ValueError(
-                f"the body plan has {actuators} actuators and {links} links; this sys has "
-                f"{sys.actuator.gear.shape[0]} and {sys.link.inertia.mass.shape[0]}"
+                f"the anatomy has {len(anatomy.actuators)} actuators and {len(anatomy.links)} links; this sys has "
+                f"{actuators} and {links}"
             )
-        gear = _factor(plan, channels, values, "gear", actuators)
+        gear = _factor(anatomy, channels, body, "gear", actuators)
         if gear is not None:
-            sys = sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * gear))
-        mass = _factor(plan, channels, values, "mass", links)
+            sys = scale_gear(sys, gear)
+        mass = _factor(anatomy, channels, body, "mass", links)
         if mass is not None:
             sys = _scale_mass(sys, jnp.broadcast_to(mass, (links,)))
-        friction = _factor(plan, channels, values, "friction", 1)
+        friction = _factor(anatomy, channels, body, "friction", 1)
         if friction is not None:
             sys = sys.replace(geom_friction=sys.geom_friction * friction, pair_friction=sys.pair_friction * friction)
-        gravity = _factor(plan, channels, values, "gravity", 1)
+        gravity = _factor(anatomy, channels, body, "gravity", 1)
         if gravity is not None:
             sys = sys.replace(gravity=sys.gravity * gravity, opt=sys.opt.replace(gravity=sys.opt.gravity * gravity))
         return sys

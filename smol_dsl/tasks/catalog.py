@@ -12,7 +12,7 @@ ant_omni (64), 640 hopper (128) and 155 ant_uni (64): a quick preset's evaluatio
 
 from __future__ import annotations
 
-from smol_dsl.language.channels import BodyPlan
+from smol_dsl.tasks.anatomy import Anatomy
 from smol_dsl.tasks.registry import TaskSpec
 
 DUTY_FACTORS = ((0.0, 0.0), (1.0, 1.0))  # two feet, each in contact a proportion of the steps
@@ -31,7 +31,7 @@ WALKER2D = TaskSpec(
         "quick": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("foot", "foot_left")},
-    body=BodyPlan(
+    anatomy=Anatomy(
         actuators=("thigh_joint", "leg_joint", "foot_joint", "thigh_left_joint", "leg_left_joint", "foot_left_joint"),
         links=("torso", "thigh", "leg", "foot", "thigh_left", "leg_left", "foot_left"),
         actuator_groups={
@@ -56,7 +56,7 @@ HALFCHEETAH = TaskSpec(
         "quick": dict(batch_size=64, episode_length=100, evaluations=8_192, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("bfoot", "ffoot")},
-    body=BodyPlan(
+    anatomy=Anatomy(
         actuators=("bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot"),
         links=("torso", "bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot"),
         actuator_groups={"back_leg": ("bthigh", "bshin", "bfoot"), "front_leg": ("fthigh", "fshin", "ffoot")},
@@ -69,7 +69,7 @@ HALFCHEETAH = TaskSpec(
 # being forward (the x velocity is the reward): leg 1 at (+x, +y) is the front left one.
 # ant.xml's own body names for legs 2 and 4 (front_right_leg, right_back_leg) disagree.
 ANT_LEGS = {"front_left_leg": "1", "back_left_leg": "2", "back_right_leg": "3", "front_right_leg": "4"}
-ANT_BODY = BodyPlan(
+ANT_ANATOMY = Anatomy(
     actuators=("hip_4", "ankle_4", "hip_1", "ankle_1", "hip_2", "ankle_2", "hip_3", "ankle_3"),
     links=("torso", *(name for i in "1234" for name in (f"aux_{i}", f"lower_leg_{i}"))),
     actuator_groups={leg: (f"hip_{i}", f"ankle_{i}") for leg, i in ANT_LEGS.items()},
@@ -89,7 +89,7 @@ ANT_OMNI = TaskSpec(
         "paper": dict(batch_size=1024, episode_length=100, hidden_layer_sizes=(256, 256)),
         "quick": dict(batch_size=64, episode_length=100, evaluations=12_800, hidden_layer_sizes=(256, 256)),
     },
-    body=ANT_BODY,
+    anatomy=ANT_ANATOMY,
 )
 
 HOPPER = TaskSpec(
@@ -106,7 +106,7 @@ HOPPER = TaskSpec(
         "quick": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("foot",)},
-    body=BodyPlan(
+    anatomy=Anatomy(
         actuators=("thigh_joint", "leg_joint", "foot_joint"),
         links=("torso", "thigh", "leg", "foot"),
         actuator_groups={"whole_leg": ("thigh_joint", "leg_joint", "foot_joint")},
@@ -128,5 +128,5 @@ ANT_UNI = TaskSpec(
         "quick": dict(batch_size=64, episode_length=100, evaluations=25_600, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": tuple(f"lower_leg_{i}" for i in "1234")},
-    body=ANT_BODY,
+    anatomy=ANT_ANATOMY,
 )

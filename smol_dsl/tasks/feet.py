@@ -18,10 +18,11 @@ import jax.numpy as jnp
 
 from smol_dsl.tasks.base import Task, make_policy, mean_over_valid
 from smol_dsl.tasks.quiet import brax_environment
-from smol_dsl.tasks.registry import TaskSpec
 
 if TYPE_CHECKING:
     from brax.envs.base import State
+
+    from smol_dsl.tasks.registry import TaskSpec
 
 
 def make(
@@ -35,7 +36,7 @@ def make(
     contacts recorded."""
     env = brax_environment(spec.environment, backend=backend, debug=True)
     feet = spec.details["feet"]
-    links = spec.body.links if spec.body is not None else env.sys.link_names
+    links = spec.anatomy.links if spec.anatomy is not None else env.sys.link_names
     feet_idx = jnp.asarray([i for i, name in enumerate(links) if name in feet])
     if len(feet_idx) != len(feet) or len(feet) != spec.descriptor_size:
         raise ValueError(f"task {spec.name}: feet {feet} are not {spec.descriptor_size} of its links {links}")

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-from smol_dsl.language.channels import BodyPlan
-
 if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.tasks.anatomy import Anatomy
     from smol_dsl.tasks.base import Task
 
 PRESET_NAMES = ("quick", "paper")
@@ -44,7 +44,7 @@ class TaskSpec:
     default_metric: str
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     details: Mapping[str, Any] = field(default_factory=dict)  # for the factory, e.g. the feet's link names
-    body: BodyPlan | None = None  # the actuators and links a schedule's channels can name
+    anatomy: Anatomy | None = None  # the actuators and links a schedule's channels can name
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
@@ -56,6 +56,15 @@ class TaskSpec:
     @property
     def descriptor_size(self) -> int:
         return len(self.descriptor_low)
+
+    def check_schedule(self, schedule: Schedule) -> None:
+        """Refuse, with a located ScheduleError, a schedule whose channels name actuators or
+        links this task's body lacks (or any, for a task without an anatomy)."""
+        anatomy = self.anatomy
+        if anatomy is None:
+            schedule.check_targets(None, self.name)
+        else:
+            schedule.check_targets(anatomy.targets(), self.name, anatomy.listing())
 
     def make(self, **options: Any) -> Task:
         """Build the task (imports JAX and Brax); options (episode_length,

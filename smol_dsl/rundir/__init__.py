@@ -1,0 +1,144 @@
+"""The run directory: the one definition of what `smol-dsl run` and `sweep` write and what
+`smol-dsl report` reads. Both the runner and the results read and write through this
+package, which sits between the tasks and the runner; nothing here imports JAX, Brax, QDax,
+Flax or sympy.
+
+Modules, one concept each:
+
+- `layout`: the file names (`*_FILE`; `FILES` says what each holds), `is_run_directory`,
+  `RunDirectoryError`;
+- `files`: atomic writes (`atomic_write`, `write_text`, `write_npz`) and `read_text`;
+- `config`: `RunConfig`, config.json, and its checked reader `read_config`;
+- `metrics`: metrics.csv's columns (`METRICS_SCHEMA`, one `Column` per column; a run's body
+  is one column per channel, `body_columns`), `MetricsLog` and the checked reader
+  `read_metrics`;
+- `certificate`: certificate.json and .txt;
+- `archive`: archive.npz (`write_archive`, `load_archive`, `read_final_archive`);
+- `record`: a run directory as a whole (`write_run_files`; `read_run` -> `RunRecord`).
+
+Writing, for the runner (every file is written atomically, and an OSError names the file
+that could not be written):
+
+    write_run_files(directory, config, schedule) -> list[Path]   # config.json, schedule.sched, certificate.*
+    log = MetricsLog(directory / METRICS_FILE, rows)   # exactly `rows`, written atomically
+    log.append(metrics_row(generation=..., phase=..., alpha=..., event="train", ...))
+    write_archive(directory / ARCHIVE_FILE, arrays)    # {"genotypes/<param path>": (C, ...), "fitnesses",
+                                                       #  "descriptors", "centroids"}; `filled` is derived
+
+Reading, for the report and for users:
+
+    read_run(directory) -> RunRecord     # every file checked; a RunDirectoryError names file and line
+    read_config, read_certificate, read_metrics, read_final_archive
+    load_archive(path) -> Archive        # the final archive with its policies, as nested dicts
+"""
+
+from smol_dsl.rundir.archive import (
+    ARCHIVE_ARRAYS,
+    GENOTYPES,
+    Archive,
+    FinalArchive,
+    load_archive,
+    read_final_archive,
+    write_archive,
+)
+from smol_dsl.rundir.certificate import CertificateRecord, certificate_record, certificate_text, read_certificate
+from smol_dsl.rundir.config import RunConfig, read_config
+from smol_dsl.rundir.files import atomic_write, read_text, write_npz, write_text
+from smol_dsl.rundir.layout import (
+    ARCHIVE_FIGURE,
+    ARCHIVE_FILE,
+    CERTIFICATE_FILE,
+    CERTIFICATE_TEXT_FILE,
+    CHECKPOINT_FILE,
+    CONFIG_FILE,
+    FILES,
+    LOCK_FILE,
+    METRICS_FIGURE,
+    METRICS_FILE,
+    RUN_MARKERS,
+    SCHEDULE_FILE,
+    SWEEP_CHECKPOINT_FILE,
+    SWEEP_FILE,
+    SWEEP_FILES,
+    RunDirectoryError,
+    files_markdown,
+    is_run_directory,
+)
+from smol_dsl.rundir.metrics import (
+    ALPHA,
+    EVENTS,
+    METRIC_FIELDS,
+    METRICS_SCHEMA,
+    SCORES,
+    Column,
+    MetricsLog,
+    MetricsSchema,
+    alpha_one_evaluations,
+    body_columns,
+    channel_column,
+    column_name,
+    first_tail_phase,
+    metrics_row,
+    metrics_schema,
+    read_metrics,
+    schema_of_header,
+)
+from smol_dsl.rundir.record import RunRecord, read_run, write_run_files
+
+__all__ = [
+    "ALPHA",
+    "ARCHIVE_ARRAYS",
+    "ARCHIVE_FIGURE",
+    "ARCHIVE_FILE",
+    "CERTIFICATE_FILE",
+    "CERTIFICATE_TEXT_FILE",
+    "CHECKPOINT_FILE",
+    "CONFIG_FILE",
+    "EVENTS",
+    "FILES",
+    "GENOTYPES",
+    "LOCK_FILE",
+    "METRICS_FIGURE",
+    "METRICS_FILE",
+    "METRICS_SCHEMA",
+    "METRIC_FIELDS",
+    "RUN_MARKERS",
+    "SCHEDULE_FILE",
+    "SCORES",
+    "SWEEP_CHECKPOINT_FILE",
+    "SWEEP_FILE",
+    "SWEEP_FILES",
+    "Archive",
+    "CertificateRecord",
+    "Column",
+    "FinalArchive",
+    "MetricsLog",
+    "MetricsSchema",
+    "RunConfig",
+    "RunDirectoryError",
+    "RunRecord",
+    "alpha_one_evaluations",
+    "atomic_write",
+    "body_columns",
+    "certificate_record",
+    "certificate_text",
+    "channel_column",
+    "column_name",
+    "files_markdown",
+    "first_tail_phase",
+    "is_run_directory",
+    "load_archive",
+    "metrics_row",
+    "metrics_schema",
+    "read_certificate",
+    "read_config",
+    "read_final_archive",
+    "read_metrics",
+    "read_run",
+    "read_text",
+    "schema_of_header",
+    "write_archive",
+    "write_npz",
+    "write_run_files",
+    "write_text",
+]

@@ -1,0 +1,182 @@
+"""archive.npz: a finished run's final archive, written from host arrays, loaded with its
+policies (`load_archive`) or read and checked without them (`read_final_archive`)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import zipfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from smol_dsl.rundir.files import write_npz
+from smol_dsl.rundir.layout import ARCHIVE_FILE, CONFIG_FILE, METRICS_FILE, RunDirectoryError, leave_out
+from smol_dsl.tasks import task_spec
+
+if TYPE_CHECKING:
+    from smol_dsl.rundir.config import RunConfig
+
+
+ARCHIVE_ARRAYS = ("fitnesses", "descriptors", "centroids", "filled")
+"""archive.npz's arrays besides the policies (`genotypes/<parameter path>`)."""
+GENOTYPES = "genotypes/"
+
+
+def write_archive(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """The final archive as `.npz`, atomically, from host arrays: `genotypes/<param path>`
+    (C, ...), `fitnesses` (C,) or (C, 1), `descriptors` (C, D), `centroids` (C, D). Fitnesses
+    are stored as (C,), and `filled` (C,) is where they are above -inf."""
+    unknown = [name for name in arrays if not name.startswith(GENOTYPES) and name not in ARCHIVE_ARRAYS]
+    if unknown:
+        raise ValueError(f"write_archive: unknown array(s) {unknown}")
+    fitnesses = np.asarray(arrays["fitnesses"]).reshape(-1)
+    write_npz(path, {**arrays, "fitnesses": fitnesses, "filled": fitnesses > -np.inf})
+
+
+@dataclass(frozen=True)
+class Archive:
+    """A saved archive: policy parameters as a nested dict (flax layout) and its scores."""
+
+    genotypes: dict[str, Any]
+    fitnesses: np.ndarray
+    descriptors: np.ndarray
+    centroids: np.ndarray
+    filled: np.ndarray
+
+    def elite(self, cell: int) -> dict[str, Any]:
+        """The policy parameters in one cell, ready for `policy.apply(params, obs)`."""
+
+        def take(node: Any) -> Any:
+            if isinstance(node, Mapping):
+                return {name: take(child) for name, child in node.items()}
+            return node[cell]
+
+        return take(self.genotypes)
+
+    @property
+    def best_cell(self) -> int:
+        return int(np.argmax(self.fitnesses))
+
+
+def load_archive(path: str | os.PathLike[str]) -> Archive:
+    """Load `archive.npz` from a run directory (or its path)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / ARCHIVE_FILE
+    with np.load(path, allow_pickle=False) as data:
+        genotypes: dict[str, Any] = {}
+        for name in data.files:
+            if not name.startswith(GENOTYPES):
+                continue
+            node = genotypes
+            *parents, leaf = name.split("/")[1:]
+            for part in parents:
+                node = node.setdefault(part, {})
+            node[leaf] = data[name]
+        return Archive(genotypes=genotypes, **{name: data[name] for name in ARCHIVE_ARRAYS})
+
+
+@dataclass(frozen=True)
+class FinalArchive:
+    """A run's final archive.npz without its policies: what the report reads and draws.
+    `fitnesses` (C,), -inf in empty cells; `descriptors` and `centroids` (C, D); `filled` (C,)."""
+
+    fitnesses: np.ndarray
+    descriptors: np.ndarray
+    centroids: np.ndarray
+    filled: np.ndarray
+
+
+def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
+    """A finished run's archive.npz, checked: it loads, holds every array with the shapes the
+    run's config gives (C cells, D descriptors, a policy per cell), and its values agree
+    (fitness finite or -inf for an empty cell, `filled` where it is finite). Shapes are read
+    from the arrays' headers first; the policies are checked by their shapes only, not read."""
+    path = Path(directory) / ARCHIVE_FILE
+    again = f"rerun the run (or copy the directory again if it was copied), {leave_out(directory)}"
+    if not path.is_file():
+        raise RunDirectoryError(
+            f"{path}: missing, though {METRICS_FILE} reaches the last generation: the run stopped before writing "
+            f"its final archive; resume it with `smol-dsl run ... --resume` (or `sweep ... --resume`), which "
+            f"writes it, {leave_out(directory)}"
+        )
+    cells = config.num_centroids
+    size = task_spec(config.task).descriptor_size
+    expected = {"fitnesses": (cells,), "descriptors": (cells, size), "centroids": (cells, size), "filled": (cells,)}
+
+    def check(name: str, shape: tuple[int, ...], dtype: np.dtype) -> None:
+        if name.startswith(GENOTYPES):
+            if shape[:1] != (cells,):
+                raise RunDirectoryError(
+                    f"{path}: {name} has shape {shape}, not one policy per cell ({cells}, ...); {again}"
+                )
+            return
+        kind = np.bool_ if name == "filled" else np.floating
+        if shape != expected[name] or not np.issubdtype(dtype, kind):
+            raise RunDirectoryError(
+                f"{path}: {name} is a {dtype} array of shape {shape}, but {CONFIG_FILE} ({cells} cells, "
+                f"{config.task}'s {size} descriptors) gives {'bool' if name == 'filled' else 'float'} of shape "
+                f"{expected[name]}; {again}"
+            )
+
+    with _reading_archive(path, again):
+        with zipfile.ZipFile(path) as bundle:
+            headers = {
+                name.removesuffix(".npy"): _npy_header(bundle, name)
+                for name in bundle.namelist()
+                if name.endswith(".npy")
+            }
+    lacking = [name for name in ARCHIVE_ARRAYS if name not in headers]
+    lacking += [] if any(name.startswith(GENOTYPES) for name in headers) else ["genotypes/..."]
+    if lacking:
+        raise RunDirectoryError(f"{path}: lacks the array(s) {', '.join(lacking)}; {again}")
+    policies = [name for name in headers if name.startswith(GENOTYPES)]
+    for name in [*ARCHIVE_ARRAYS, *policies]:  # before reading anything: a damaged header may claim any size
+        if headers[name] is not None:
+            check(name, *headers[name])
+    with _reading_archive(path, again), np.load(path, allow_pickle=False) as data:
+        arrays = {name: np.asarray(data[name]) for name in ARCHIVE_ARRAYS}
+    for name, array in arrays.items():
+        check(name, array.shape, array.dtype)
+    fitnesses, filled = arrays["fitnesses"], arrays["filled"]
+    if np.isnan(fitnesses).any() or (fitnesses == np.inf).any():
+        raise RunDirectoryError(f"{path}: a fitness is NaN or +inf; {again}")
+    if not np.array_equal(filled, fitnesses > -np.inf):
+        raise RunDirectoryError(f"{path}: `filled` disagrees with the fitnesses (-inf marks an empty cell); {again}")
+    if not np.isfinite(arrays["centroids"]).all() or not np.isfinite(arrays["descriptors"][filled]).all():
+        raise RunDirectoryError(f"{path}: a centroid or a filled cell's descriptor is not finite; {again}")
+    return FinalArchive(**arrays)
+
+
+@contextlib.contextmanager
+def _reading_archive(path: Path, again: str) -> Iterator[None]:
+    """Turn what reading a damaged or unreadable archive raises into a RunDirectoryError."""
+    try:
+        yield
+    except OSError as error:
+        raise RunDirectoryError(
+            f"{path}: cannot be read ({error.strerror or error}); check its permissions, {leave_out(path.parent)}"
+        ) from None
+    except Exception as error:  # zipfile.BadZipFile, EOFError, ValueError...: a file cut short or damaged
+        raise RunDirectoryError(
+            f"{path}: not a readable archive ({type(error).__name__}: {error}); it is damaged or cut short "
+            f"(a full disk, or an unfinished copy): {again}"
+        ) from None
+
+
+def _npy_header(bundle: zipfile.ZipFile, name: str) -> tuple[tuple[int, ...], np.dtype] | None:
+    """The shape and dtype in an .npy member's header, without reading its data (None: a
+    header version this does not read; the array is checked once loaded)."""
+    with bundle.open(name) as member:
+        version = np.lib.format.read_magic(member)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+        else:
+            return None
+        return shape, dtype

@@ -1,0 +1,130 @@
+"""config.json: `RunConfig`, everything that determines a run besides its schedule's text,
+and `read_config`, which reads one back and checks every setting.
+
+Imports neither JAX nor Brax nor sympy (`report` reads config.json with it)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from smol_dsl.errors import UserInputError
+from smol_dsl.rundir.files import read_text
+from smol_dsl.rundir.layout import CONFIG_FILE, RunDirectoryError, leave_out
+from smol_dsl.seeds import check_seed
+from smol_dsl.tasks import task_spec
+
+ISO_SIGMA = 0.005  # the paper's iso+line variation
+LINE_SIGMA = 0.05
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that determines a run, besides the schedule's text.
+
+    `evaluations` is the training budget (offspring evaluated, the initial population
+    included); re-evaluations at phase boundaries are counted separately.
+    """
+
+    task: str
+    evaluations: int
+    batch_size: int
+    num_phases: int
+    num_centroids: int
+    episode_length: int
+    hidden_layer_sizes: tuple[int, ...]
+    seed: int = 0
+    iso_sigma: float = ISO_SIGMA
+    line_sigma: float = LINE_SIGMA
+    num_init_cvt_samples: int = 50_000
+    preset: str = "custom"
+
+    def __post_init__(self) -> None:
+        # only seeds 0 .. 2**32 - 1 give distinct runs (smol_dsl.seeds); a SeedError otherwise
+        object.__setattr__(self, "seed", check_seed(self.seed))
+
+    @property
+    def generations(self) -> int:
+        """Generations after the initial population (which is generation 0)."""
+        return self.evaluations // self.batch_size - 1
+
+    def phase_of_generation(self, generation: int) -> int:
+        """The phase that generation g (1..generations) trains in: equal shares, in order."""
+        return ((generation - 1) * self.num_phases) // self.generations
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> RunConfig:
+        data = json.loads(text)
+        data["hidden_layer_sizes"] = tuple(data["hidden_layer_sizes"])
+        return cls(**data)
+
+
+CONFIG_TYPES = {"str": str, "int": int, "float": float, "tuple[int, ...]": list}
+CONFIG_AT_LEAST_ONE = ("evaluations", "batch_size", "num_phases", "num_centroids", "episode_length")
+
+
+def read_config(path: Path) -> RunConfig:
+    """A run's config.json, checked: every setting present, of its type, and usable."""
+    text = read_text(path)
+    fix = f"this is not a {CONFIG_FILE} that smol-dsl wrote; rerun the run, {leave_out(path.parent)}"
+    try:
+        data = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as error:
+        where = f":{error.lineno}" if isinstance(error, json.JSONDecodeError) else ""
+        raise RunDirectoryError(f"{path}{where}: not valid JSON ({error}); {fix}") from None
+    if not isinstance(data, dict):
+        raise RunDirectoryError(f"{path}: holds {type(data).__name__}, not the run's settings; {fix}")
+    fields = {field.name: field for field in dataclasses.fields(RunConfig)}
+    missing = [name for name, field in fields.items() if name not in data and field.default is dataclasses.MISSING]
+    if missing:
+        raise RunDirectoryError(f"{path}: lacks the setting(s) {', '.join(missing)}; {fix}")
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise RunDirectoryError(
+            f"{path}: unknown setting(s) {', '.join(unknown)} (from another smol-dsl version?); {fix}"
+        )
+    for name, value in data.items():
+        kind = CONFIG_TYPES.get(str(fields[name].type))
+        if kind is None:
+            continue
+        if kind is float:
+            ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        elif kind is list:
+            ok = isinstance(value, list) and all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value
+            )
+        else:
+            ok = isinstance(value, kind) and not isinstance(value, bool)
+        if not ok:
+            expected = {str: "a string", int: "a whole number", float: "a finite number", list: "a list of sizes"}[kind]
+            raise RunDirectoryError(f"{path}: {name} is {json.dumps(value)[:40]}, not {expected}; {fix}")
+    try:
+        task_spec(data["task"])
+    except ValueError as error:  # "unknown task 'x'; the tasks are ..."
+        raise RunDirectoryError(f"{path}: {error}; {fix}") from None
+    for name in CONFIG_AT_LEAST_ONE:
+        if name in data and data[name] < 1:
+            raise RunDirectoryError(f"{path}: {name} is {data[name]}, but must be at least 1; {fix}")
+    data["hidden_layer_sizes"] = tuple(data["hidden_layer_sizes"])
+    try:
+        config = RunConfig(**data)
+    except (UserInputError, ValueError) as error:  # a seed outside 0 .. 2**32 - 1, say
+        raise RunDirectoryError(
+            f"{path}: {error}; rerun the run with settings the runner accepts, {leave_out(path.parent)}"
+        ) from None
+    if config.generations < 1:
+        raise RunDirectoryError(
+            f"{path}: {config.evaluations} evaluations in batches of {config.batch_size} make no generation; {fix}"
+        )
+    if config.generations < config.num_phases:
+        raise RunDirectoryError(
+            f"{path}: {config.num_phases} phases but only {config.generations} generations; the runner refuses "
+            f"such settings, so smol-dsl did not write this file; {fix}"
+        )
+    return config

@@ -1,0 +1,76 @@
+"""Writing and reading a run directory's files: every write atomic, every failure named.
+
+`atomic_write` writes a temporary file beside the target, fsyncs it and renames it over the
+target, so a process killed at any moment leaves the old file or the new one, never a torn
+one; an OSError names the file that could not be written. `read_text` reads a text file of
+a run directory, or raises a RunDirectoryError that says why it cannot be used.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from smol_dsl.rundir.layout import RunDirectoryError, leave_out
+
+
+def atomic_write(path: Path, write: Callable[[IO[bytes]], Any]) -> None:
+    """Call write(file) on a temporary file beside `path`, fsync it, and rename it over path.
+
+    If anything fails (a full disk, say), the temporary file is removed and `path` is left as
+    it was; an OSError is raised with `filename` set to `path`, whatever file the OS named.
+    """
+    path = Path(path)
+    temporary = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # processes may share a directory
+    try:
+        with open(temporary, "wb") as file:
+            write(file)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except BaseException as error:
+        with contextlib.suppress(OSError):
+            temporary.unlink(missing_ok=True)
+        if isinstance(error, OSError) and error.filename != str(path):
+            raise OSError(error.errno, error.strerror or str(error), str(path)) from error
+        raise
+    directory = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(directory)
+    finally:
+        os.close(directory)
+
+
+def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write arrays atomically as an uncompressed `.npz`."""
+    atomic_write(path, lambda file: np.savez(file, **arrays))
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write a UTF-8 text atomically."""
+    atomic_write(path, lambda file: file.write(text.encode()))
+
+
+def read_text(path: Path) -> str:
+    """A run directory's text file, or a RunDirectoryError saying why it cannot be used."""
+    directory = path.parent
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RunDirectoryError(
+            f"{path}: missing; every run directory holds it (the runner writes it first), so {directory} is "
+            f"incomplete: rerun that run, {leave_out(directory)}"
+        ) from None
+    except UnicodeDecodeError:
+        raise RunDirectoryError(
+            f"{path}: not a text file (it is not UTF-8); rerun that run, {leave_out(directory)}"
+        ) from None
+    except OSError as error:
+        raise RunDirectoryError(
+            f"{path}: cannot be read ({error.strerror or error}); check its permissions, {leave_out(directory)}"
+        ) from None

@@ -1,0 +1,79 @@
+"""A run directory's files: their names, what each holds, and what makes a directory a run's.
+
+`FILES` lists every file of a run directory in the order the runner writes them,
+`SWEEP_FILES` a sweep directory's own; docs/runner.md's tables are generated from them.
+`RunDirectoryError` is the error of a run directory whose files cannot be used.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+from smol_dsl.errors import UserInputError
+
+CONFIG_FILE = "config.json"
+SCHEDULE_FILE = "schedule.sched"
+CERTIFICATE_FILE = "certificate.json"
+CERTIFICATE_TEXT_FILE = "certificate.txt"
+METRICS_FILE = "metrics.csv"
+CHECKPOINT_FILE = "checkpoint.npz"
+ARCHIVE_FILE = "archive.npz"
+METRICS_FIGURE = "metrics.png"
+ARCHIVE_FIGURE = "archive.png"
+LOCK_FILE = ".smol-dsl.lock"
+SWEEP_FILE = "sweep.json"
+SWEEP_CHECKPOINT_FILE = "sweep-checkpoint.npz"
+
+FILES = (
+    (CONFIG_FILE, "the resolved settings (`RunConfig`)"),
+    (SCHEDULE_FILE, "the schedule's source"),
+    (CERTIFICATE_FILE, "what was proven about the schedule, with its `name` and `tail_start` (where α = 1 for good)"),
+    (CERTIFICATE_TEXT_FILE, "the same certificate, as `smol-dsl check` prints it"),
+    (METRICS_FILE, "one row per generation and per re-evaluation (columns below)"),
+    (CHECKPOINT_FILE, "the state at the last checkpointed phase boundary (for `--resume`)"),
+    (
+        ARCHIVE_FILE,
+        "the final archive: `genotypes/<parameter path>` (C, ...), `fitnesses` (C,), `descriptors` (C, D), "
+        "`centroids` (C, D), `filled` (C,); an empty cell's fitness is −inf",
+    ),
+    (METRICS_FIGURE, "max fitness, coverage, QD score and every scheduled channel's factor over training evaluations"),
+    (
+        ARCHIVE_FIGURE,
+        "the final archive: a 2-D map of the CVT cells coloured by their elites' fitness (1 descriptor: fitness "
+        "along it; more than 2: the best elite over the first two descriptors)",
+    ),
+    (LOCK_FILE, "the lock of the process writing the directory: its pid and host"),
+)
+"""Every file of a run directory and what it holds, in the order the runner writes them."""
+SWEEP_FILES = (
+    (SWEEP_FILE, "the sweep's settings, schedules and seeds"),
+    (SWEEP_CHECKPOINT_FILE, "every run's state at the last checkpointed phase boundary, stacked"),
+)
+"""A sweep directory's own files, beside one run directory per (schedule, seed)."""
+RUN_MARKERS = (SCHEDULE_FILE, CERTIFICATE_FILE, ARCHIVE_FILE, CHECKPOINT_FILE)
+"""Besides metrics.csv, files that make a directory with a config.json a run directory."""
+
+
+class RunDirectoryError(UserInputError):
+    """A run directory whose files cannot be used: the message names the file (and line),
+    what is wrong with it and what to do."""
+
+
+def leave_out(directory: Path) -> str:
+    return f"or move {directory} out of the directories you report on"
+
+
+def is_run_directory(path: Path) -> bool:
+    """Whether path looks like a run directory, whole or not: it holds metrics.csv, or a
+    config.json with another file the runner writes. `read_run` says what is wrong with it."""
+    if (path / METRICS_FILE).is_file():
+        return True
+    return (path / CONFIG_FILE).is_file() and any((path / name).is_file() for name in RUN_MARKERS)
+
+
+def files_markdown(files: Sequence[tuple[str, str]] = FILES) -> str:
+    """A table of files and what they hold, in Markdown (docs/runner.md holds FILES')."""
+    lines = ["| file | contents |", "| --- | --- |"]
+    lines += [f"| `{name}` | {contents} |" for name, contents in files]
+    return "\n".join(lines) + "\n"

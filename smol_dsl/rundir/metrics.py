@@ -1,0 +1,394 @@
+"""metrics.csv: its columns (`METRICS_SCHEMA`, one `Column` each), the row builder, the
+appending writer (`MetricsLog`) and the typed, checked reader (`read_metrics`), all derived
+from the schema, so that a new float column is one line there (and the runner giving its value).
+
+A run's body is one column per scheduled channel: `alpha` for plain gear (the paper's
+actuator scale; 1 for a file that does not schedule it), and one named as the channel
+(`mass`, `gear[left_leg]`) for every other channel (`body_columns`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from smol_dsl.language.channels import GEAR, Channel
+from smol_dsl.rundir.files import write_text
+from smol_dsl.rundir.layout import CONFIG_FILE, RunDirectoryError, leave_out
+
+if TYPE_CHECKING:
+    from smol_dsl.rundir.config import RunConfig
+
+
+EVENTS = ("init", "train", "reevaluate", "reseed")
+"""The values of metrics.csv's `event` column."""
+
+
+def _finite(value: float) -> bool:
+    return math.isfinite(value)
+
+
+def _finite_or_minus_inf(value: float) -> bool:  # -inf: an archive that extinction emptied
+    return not math.isnan(value) and value != math.inf
+
+
+def _percentage(value: float) -> bool:
+    return 0 <= value <= 100
+
+
+def _positive(value: float) -> bool:
+    return math.isfinite(value) and value > 0
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column of metrics.csv: its name, Python type (int, float or str), meaning, and the
+    values it may take: a whole number of 0 or more (int), one of `choices` (str), or a float
+    for which `valid` holds (finite by default), described in words by `expected`."""
+
+    name: str
+    type: type
+    meaning: str
+    label: str = ""  # a figure's axis label; the name with spaces when empty
+    choices: tuple[str, ...] = ()
+    valid: Callable[[float], bool] = _finite
+    expected: str = "a finite number"
+
+    def __post_init__(self) -> None:
+        if self.type not in (int, float, str):
+            raise TypeError(f"column {self.name}: the type must be int, float or str, not {self.type!r}")
+
+    @property
+    def axis_label(self) -> str:
+        return self.label or self.name.replace("_", " ")
+
+    @property
+    def values(self) -> str:
+        """The values the column may take, in words."""
+        if self.type is int:
+            return "a whole number of 0 or more"
+        if self.type is str:
+            return ", ".join(self.choices) if self.choices else "text"
+        return self.expected
+
+    def convert(self, value: Any) -> Any:
+        """A value as the row writer writes it (a NumPy or JAX scalar becomes a Python one)."""
+        return self.type(value)
+
+    def parse(self, text: str) -> Any:
+        """The typed value of one CSV cell; a ValueError saying what is wrong ("is 'x', not ...")."""
+        shown = repr(text[:40])
+        if self.type is str:
+            if self.choices and text not in self.choices:
+                raise ValueError(f"is {shown}, not one of {', '.join(self.choices)}")
+            return text
+        if self.type is int:
+            try:
+                whole = int(text)
+            except ValueError:
+                whole = -1
+            if whole < 0:
+                raise ValueError(f"is {shown}, not a whole number of 0 or more")
+            return whole
+        try:
+            number = float(text)
+        except ValueError:
+            raise ValueError(f"is {shown}, not a number") from None
+        if not self.valid(number):
+            raise ValueError(f"is {shown}, but must be {self.expected}")
+        return number
+
+
+@dataclass(frozen=True)
+class MetricsSchema:
+    """The columns of metrics.csv, in order."""
+
+    columns: tuple[Column, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(column.name for column in self.columns)
+
+    def __getitem__(self, name: str) -> Column:
+        for column in self.columns:
+            if column.name == name:
+                return column
+        raise KeyError(name)
+
+    def row(self, **values: Any) -> dict[str, Any]:
+        """A row with every column, in order, each value converted to its column's type;
+        a TypeError names a missing or unknown column."""
+        missing = [name for name in self.names if name not in values]
+        unknown = [name for name in values if name not in self.names]
+        if missing or unknown:
+            raise TypeError(f"metrics row: missing column(s) {missing}, unknown column(s) {unknown}")
+        return {column.name: column.convert(values[column.name]) for column in self.columns}
+
+    def parse_row(self, texts: Mapping[str, str]) -> dict[str, Any]:
+        """A CSV row's cells typed; a ValueError naming the column ("alpha is 'x', not a number")."""
+        typed = {}
+        for column in self.columns:
+            try:
+                typed[column.name] = column.parse(texts[column.name])
+            except ValueError as error:
+                raise ValueError(f"{column.name} {error}") from None
+        return typed
+
+    def csv_text(self, rows: Sequence[Mapping[str, Any]]) -> str:
+        """The header and the rows, as metrics.csv holds them."""
+        text = io.StringIO(newline="")
+        writer = csv.DictWriter(text, self.names)
+        writer.writeheader()
+        writer.writerows(rows)
+        return text.getvalue()
+
+    def markdown(self) -> str:
+        """The schema as a Markdown table (docs/runner.md holds it)."""
+        lines = ["| column | type | meaning | values |", "| --- | --- | --- | --- |"]
+        for column in self.columns:
+            lines.append(f"| `{column.name}` | {column.type.__name__} | {column.meaning} | {column.values} |")
+        return "\n".join(lines) + "\n"
+
+
+METRICS_SCHEMA = MetricsSchema(
+    (
+        Column("generation", int, "generations done (0: the initial population)"),
+        Column("phase", int, "the phase, 0 to N − 1 (a `reevaluate` row's: the one it starts)"),
+        Column("alpha", float, "the phase's α", label="α", valid=_positive, expected="a finite number above 0"),
+        Column("event", str, "what the row logs (below)", choices=EVENTS),
+        Column("evaluations", int, "training evaluations so far, the initial population included"),
+        Column("reevaluations", int, "evaluations spent on re-evaluating the archive so far"),
+        Column(
+            "coverage",
+            float,
+            "filled cells, in % of the archive",
+            label="coverage (%)",
+            valid=_percentage,
+            expected="a percentage from 0 to 100",
+        ),
+        Column(
+            "max_fitness",
+            float,
+            "the best elite's fitness (−inf: an archive that extinction emptied)",
+            valid=_finite_or_minus_inf,
+            expected="a number or -inf",
+        ),
+        Column("qd_score", float, "QD score, with QDax's offset per filled cell", label="QD score"),
+        Column("non_finite", int, "results of this row's evaluations dropped for a non-finite fitness or descriptor"),
+    )
+)
+"""metrics.csv's columns. `event` is `init` (generation 0's random population), `train` (a
+generation), `reevaluate` (the archive re-scored at a phase boundary) or `reseed` (a
+generation that re-seeded an archive extinction emptied)."""
+METRIC_FIELDS = METRICS_SCHEMA.names
+"""metrics.csv's header."""
+SCORES = ("max_fitness", "coverage", "qd_score")
+"""The columns that score an archive: what a report compares and figures draw."""
+
+
+ALPHA = "alpha"
+"""Plain gear's column: the paper's alpha, every actuator's gear factor (1 when not scheduled)."""
+
+
+def column_name(channel: Channel) -> str:
+    """A channel's metrics.csv column: `alpha` for plain gear, else the channel's name."""
+    return ALPHA if channel == GEAR else channel.name
+
+
+def channel_column(name: str) -> Column:
+    """The metrics.csv column of a scheduled channel other than plain gear (which is
+    `alpha`): named as the channel (`mass`, `gear[left_leg]`), its factor in the phase."""
+    return Column(name, float, f"the phase's {name} factor", valid=_positive, expected="a finite number above 0")
+
+
+def metrics_schema(channels: Sequence[Channel] = ()) -> MetricsSchema:
+    """The columns of a run of these channels: METRICS_SCHEMA, whose `alpha` is plain gear's,
+    and one column per other channel right after `alpha`, in the order given."""
+    extra = tuple(channel_column(channel.name) for channel in channels if channel != GEAR)
+    if not extra:
+        return METRICS_SCHEMA
+    at = METRICS_SCHEMA.names.index(ALPHA) + 1
+    return MetricsSchema(METRICS_SCHEMA.columns[:at] + extra + METRICS_SCHEMA.columns[at:])
+
+
+def body_columns(channels: Sequence[Channel], body: Sequence[float]) -> dict[str, float]:
+    """A body's columns of a metrics row: `alpha` (1 unless plain gear is among `channels`)
+    and each other channel's factor, for the (C,) `body` of `channels`."""
+    columns = {ALPHA: 1.0}
+    columns.update({column_name(channel): float(value) for channel, value in zip(channels, body, strict=True)})
+    return columns
+
+
+def schema_of_header(header: Sequence[str]) -> MetricsSchema:
+    """The schema of a metrics.csv with this header: METRICS_SCHEMA and a column for every
+    header name that is a channel's (other columns are ignored)."""
+    channels = []
+    for name in header:
+        if name in METRICS_SCHEMA.names:
+            continue
+        try:
+            channels.append(Channel.parse(name))
+        except ValueError:
+            continue
+    return metrics_schema(channels)
+
+
+def metrics_row(schema: MetricsSchema = METRICS_SCHEMA, **values: Any) -> dict[str, Any]:
+    """A metrics.csv row of `schema`: every column, typed (`float(jax_scalar)` done here)."""
+    return schema.row(**values)
+
+
+class MetricsLog:
+    """metrics.csv, appended row by row.
+
+    It starts as exactly `rows` (the rows of the checkpoint the run starts from), written
+    atomically: on resume, rows written after that checkpoint are dropped and a deleted
+    metrics.csv comes back, so a resumed run's metrics.csv never repeats a row. With `path`
+    None nothing is written. An OSError names the file.
+    """
+
+    def __init__(
+        self, path: Path | None, rows: Sequence[Mapping[str, Any]], schema: MetricsSchema = METRICS_SCHEMA
+    ) -> None:
+        self.path = path
+        self.schema = schema
+        if path is not None:
+            write_text(path, schema.csv_text(rows))
+
+    def append(self, row: Mapping[str, Any]) -> None:
+        if self.path is None:
+            return
+        try:
+            with open(self.path, "a", newline="", encoding="utf-8") as file:
+                csv.DictWriter(file, self.schema.names).writerow(row)
+        except OSError as error:  # a full disk fails on close, with no file name
+            raise OSError(error.errno, error.strerror or str(error), str(self.path)) from error
+
+
+def alpha_one_evaluations(rows: Sequence[Mapping[str, Any]], first_tail_phase: int) -> float | None:
+    """Training evaluations at the start of the first phase of the alpha = 1 tail."""
+    for row in rows:
+        if row["phase"] >= first_tail_phase:
+            return float(row["evaluations"])
+    return None
+
+
+def first_tail_phase(tail_start: float, num_phases: int) -> int:
+    """The first phase k with k / num_phases >= tail_start (num_phases if none), robust to
+    tail_start having been rounded to a float."""
+    first = min(math.ceil(tail_start * num_phases), num_phases)
+    while first > 0 and (first - 1) / num_phases >= tail_start:
+        first -= 1
+    while first < num_phases and first / num_phases < tail_start:
+        first += 1
+    return first
+
+
+def read_metrics(
+    path: Path, config: RunConfig | None = None, schema: MetricsSchema = METRICS_SCHEMA
+) -> list[dict[str, Any]]:
+    """Every row of a run's metrics.csv, typed by `schema` and checked: all columns there,
+    numbers where numbers belong, finite where they must be, each row once and in the
+    runner's order (generation 0's init row, one train or reseed row per generation, a
+    reevaluate row at each phase boundary), and, given the run's `config`, within its
+    generations and phases. Raises RunDirectoryError naming the file and line."""
+    directory = path.parent
+    rerun = f"rerun the run, {leave_out(directory)}"
+    rows: list[dict[str, Any]] = []
+    lines: list[int] = []
+    seen: dict[tuple[Any, ...], int] = {}
+    line = 0
+    try:
+        with open(path, newline="", encoding="utf-8") as file:
+            reader = csv.reader(file)
+            header = next(reader, None)
+            if header is None:
+                raise RunDirectoryError(f"{path}: empty; the run wrote no metrics (it stopped at once); {rerun}")
+            if schema is METRICS_SCHEMA:  # and a column per scheduled channel the header names
+                schema = schema_of_header(header)
+            missing = [name for name in schema.names if name not in header]
+            if missing or len(set(header)) != len(header):
+                what = f"lacks the column(s) {', '.join(missing)}" if missing else "names a column twice"
+                raise RunDirectoryError(f"{path}:1: the header {what}; it should be {','.join(schema.names)}; {rerun}")
+            for values in reader:
+                line = reader.line_num
+                if not values:
+                    continue  # a blank line
+                if len(values) != len(header):
+                    raise RunDirectoryError(
+                        f"{path}:{line}: {len(values)} values where the header has {len(header)} columns (a row "
+                        f"cut short, or two rows run together); delete or repair the line, or {rerun}"
+                    )
+                try:
+                    row = schema.parse_row(dict(zip(header, values, strict=True)))
+                except ValueError as error:
+                    raise RunDirectoryError(f"{path}:{line}: {error}; {rerun}") from None
+                key = (row["event"], row["phase"], row["evaluations"])
+                if key in seen:
+                    raise RunDirectoryError(
+                        f"{path}:{line}: repeats line {seen[key]} (event {row['event']}, phase {row['phase']}, "
+                        f"{row['evaluations']} evaluations); every row must appear once: delete the repeated "
+                        f"line, or {rerun}"
+                    )
+                seen[key] = line
+                _check_order(path, line, row, rows[-1] if rows else None, lines[-1] if lines else 0, config, rerun)
+                rows.append(row)
+                lines.append(line)
+    except UnicodeDecodeError:
+        raise RunDirectoryError(f"{path}: not a text file (it is not UTF-8); {rerun}") from None
+    except csv.Error as error:
+        raise RunDirectoryError(f"{path}:{line + 1}: not readable as CSV ({error}); {rerun}") from None
+    except OSError as error:
+        raise RunDirectoryError(
+            f"{path}: cannot be read ({error.strerror or error}); check its permissions, {leave_out(directory)}"
+        ) from None
+    if not rows:
+        raise RunDirectoryError(f"{path}: a header but no rows; the run wrote no metrics (it stopped at once); {rerun}")
+    return rows
+
+
+def _check_order(
+    path: Path,
+    line: int,
+    row: dict[str, Any],
+    previous: dict[str, Any] | None,
+    previous_line: int,
+    config: RunConfig | None,
+    rerun: str,
+) -> None:
+    """A row follows the one before as the runner writes them."""
+    where = f"{path}:{line}"
+    if config is not None and row["generation"] > config.generations:
+        raise RunDirectoryError(
+            f"{where}: generation {row['generation']}, but {CONFIG_FILE} gives the run {config.generations} "
+            f"generations; the two files are from different runs: {rerun}"
+        )
+    if config is not None and row["phase"] >= config.num_phases:
+        raise RunDirectoryError(
+            f"{where}: phase {row['phase']}, but {CONFIG_FILE} gives the run {config.num_phases} phases "
+            f"(0 to {config.num_phases - 1}); the two files are from different runs: {rerun}"
+        )
+    if previous is None:
+        if row["event"] != "init" or row["generation"] != 0:
+            raise RunDirectoryError(
+                f"{where}: the first row must be generation 0's init row, not generation {row['generation']}'s "
+                f"{row['event']} row; the start of the file is missing: {rerun}"
+            )
+        return
+    expected = previous["generation"] + (0 if row["event"] == "reevaluate" else 1)
+    if row["event"] == "init" or row["generation"] != expected or row["phase"] < previous["phase"]:
+        raise RunDirectoryError(
+            f"{where}: generation {row['generation']} ({row['event']}, phase {row['phase']}) cannot follow "
+            f"generation {previous['generation']} (line {previous_line}, phase {previous['phase']}); rows are "
+            f"missing or out of order: {rerun}"
+        )
+    if row["evaluations"] < previous["evaluations"]:
+        raise RunDirectoryError(
+            f"{where}: {row['evaluations']} evaluations, fewer than the {previous['evaluations']} of line "
+            f"{previous_line}; rows are out of order: {rerun}"
+        )
