@@ -18,9 +18,11 @@ if TYPE_CHECKING:
 
 
 def certificate_record(schedule: Schedule) -> dict[str, Any]:
-    """certificate.json's contents: the schedule's name, the start of its α = 1 tail and
-    its certificate."""
+    """certificate.json's contents: the schedule's name, where its final-body tail starts (the
+    latest of its channels'), plain gear's certificate, its final body and every channel's
+    certificate."""
     record = {"name": schedule.name, "tail_start": float(schedule.tail_start), **schedule.certificate.to_dict()}
+    record["tail_start"] = float(schedule.tail_start)  # the schedule's (every channel's), not plain gear's
     record["final_body"] = {channel.name: value for channel, value in schedule.final_body.items()}
     record["channels"] = {channel.name: cert.to_dict() for channel, cert in schedule.certificates.items()}
     return record
