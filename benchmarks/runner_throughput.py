@@ -119,7 +119,7 @@ def main() -> None:
     score = task.scoring_fn()
     params = task.init_policies(jax.random.key(1), batch)
     start = deterministic_init_state(task.env, jax.random.key(0))  # QDax's start for key 0
-    alpha = jnp.float32(1.0)
+    body = jnp.ones(1)  # plain gear at 1: the standard body
     centroids = cvt_centroids(1024, task.descriptor_low, task.descriptor_high, 50_000, jax.random.key(2))
 
     def engine_generation(engine: Engine) -> tuple[Callable[[], object], dict]:
@@ -127,7 +127,7 @@ def main() -> None:
         state they update (its archive)."""
         put = engine.put
         state = {"archive": engine.empty_archives(centroids[None]), "key": jax.random.key(4)}
-        inputs = (put(jnp.ones((1, 1), jnp.float32)), put(stack_runs([start])))  # one run, body (alpha,)
+        inputs = (put(jnp.ones((1, 1), jnp.float32)), put(stack_runs([start])))  # one run, its body (gear,)
 
         def generation() -> object:
             state["key"], key = jax.random.split(state["key"])
@@ -167,7 +167,7 @@ def main() -> None:
     one_generation, one_state = engine_generation(one)
     medians = interleaved(
         {
-            "raw": lambda: score(params, alpha, start)[0],
+            "raw": lambda: score(params, body, start)[0],
             "one_device": one_generation,
             "all_devices": engine_generation(every)[0],
             "qdax": qdax_generation,

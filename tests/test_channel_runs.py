@@ -15,7 +15,9 @@ import pytest
 import smol_dsl
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.results.report import ReportError, load_runs
+from smol_dsl.runner import engine as engine_module
 from smol_dsl.runner import preset_config, run_experiment, run_sweep
+from smol_dsl.runner.engine import Engine, shared_engine
 from smol_dsl.runner.progress import ProgressBar
 from smol_dsl.tasks import make_task
 
@@ -47,20 +49,34 @@ def three_channel_run(task, tmp_path_factory):
     return run_experiment(task, smol_dsl.load(THREE_CHANNELS), small_config(), out_dir=out)
 
 
-def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_channel_run, task):
+def spy(method, calls):
+    """`method`, recording the object it is called on in `calls`."""
+
+    def recorded(self, *args, **kwargs):
+        calls.append(self)
+        return method(self, *args, **kwargs)
+
+    return recorded
+
+
+def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_channel_run, task, monkeypatch):
     schedule = smol_dsl.load(THREE_CHANNELS)
     assert three_channel_run.channels == (GEAR, Channel("mass"), Channel("friction"))
     values = three_channel_run.bodies
     assert values.shape == (SMALL["num_phases"], 3)
     assert len({tuple(row) for row in values}) > 10  # the body changes from phase to phase
-    from smol_dsl.runner.engine import shared_engine
-
     engine = shared_engine(task, three_channel_run.config, tuple(jax.local_devices()), 1, 1, schedule.channels)
     programs = engine._step._cache_size(), engine._reevaluate_chunk._cache_size()
     assert programs[0] >= 1 and programs[1] == 1  # (the initial population's step may be its own program)
-    # another run of these channels, with 4 phases of other values and another seed: no new program
+    # another run of these channels, with 4 phases of other values and another seed: the same
+    # engine (no engine is built), and no new program in it
+    built = engine_module._engine.cache_info()
+    used = []
+    monkeypatch.setattr(Engine, "step", spy(Engine.step, used))
     again = run_experiment(task, schedule, small_config(num_phases=4, seed=9))
     assert not np.array_equal(again.bodies, values[:4])
+    assert used and all(other is engine for other in used)
+    assert engine_module._engine.cache_info().misses == built.misses
     assert (engine._step._cache_size(), engine._reevaluate_chunk._cache_size()) == programs
 
 

@@ -256,7 +256,7 @@ def test_cli_sweep_bad_process_flags(flags, message, tmp_path, capsys, monkeypat
 
 
 def test_devices_split_runs_first_then_populations():
-    from smol_dsl.runner.engine import mesh_shape
+    from smol_dsl.runner.layout import mesh_shape
 
     assert mesh_shape(devices=2, runs=15, batch_size=128) == (2, 1)  # 16 slots, one padded
     assert mesh_shape(devices=2, runs=1, batch_size=128) == (1, 2)  # one run, its batch halved

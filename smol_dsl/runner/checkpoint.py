@@ -235,7 +235,7 @@ def _load(
     try:
         with np.load(path, allow_pickle=False) as data:
             _check_layout(path, data, genotype_template, layout, descriptors)
-            if owner is not None and "owner" in data.files:  # checkpoints before 0.1.0's hardening have none
+            if owner is not None and "owner" in data.files:  # a checkpoint that names no owner is not checked
                 _check_owner(path, json.loads(str(data["owner"])), owner)
             repertoire = _repertoire_from(data, genotype_template)
             key = jax.random.wrap_key_data(jax.numpy.asarray(data[KEYS]))

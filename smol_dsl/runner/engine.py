@@ -29,6 +29,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from qdax.utils.metrics import default_qd_metrics
 
 from smol_dsl.language.channels import GEAR, Channel
+from smol_dsl.runner.layout import default_runs_per_step, mesh_shape
 from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites, reevaluation_chunks
 from smol_dsl.tasks import make_task
 
@@ -40,26 +41,6 @@ if TYPE_CHECKING:
 
 RUNS = "runs"
 POPULATION = "population"
-
-
-def mesh_shape(devices: int, runs: int, batch_size: int) -> tuple[int, int]:
-    """How to lay `devices` out as (runs axis, population axis).
-
-    Runs are split first: the runs axis gets the largest divisor of the device count that
-    is at most the number of runs. The devices left over split each run's population,
-    when the batch divides evenly; otherwise they stay idle.
-    """
-    along_runs = max(d for d in range(1, devices + 1) if devices % d == 0 and d <= max(runs, 1))
-    along_population = devices // along_runs
-    if batch_size % along_population:
-        along_population = 1
-    return along_runs, along_population
-
-
-def default_runs_per_step(devices: list[jax.Device]) -> int | None:
-    """How many runs a device advances at once: all of them (None) on accelerators, one
-    at a time on CPUs, where a bigger batch lowers rollout throughput."""
-    return 1 if devices[0].platform == "cpu" else None
 
 
 class Engine:
@@ -255,4 +236,4 @@ def stack_runs(trees: list[Any]) -> Any:
     return jax.tree.map(lambda *x: jnp.stack(x), *trees)
 
 
-__all__ = ["Engine", "default_runs_per_step", "mesh_shape", "shared_engine", "shared_task", "stack_runs"]
+__all__ = ["Engine", "shared_engine", "shared_task", "stack_runs"]

@@ -27,6 +27,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.runner.config import RunError
+from smol_dsl.runner.layout import default_runs_per_step, mesh_shape
+from smol_dsl.tasks import task_sizes
+
 if TYPE_CHECKING:
     from smol_dsl.rundir.config import RunConfig
 
@@ -199,9 +203,6 @@ def plan_footprint(
 ) -> Footprint:
     """The footprint of `runs` runs of `config` on these devices (runs_per_step None: all of
     a device's runs at once)."""
-    from smol_dsl.runner.engine import mesh_shape
-    from smol_dsl.tasks import task_sizes
-
     sizes = task_sizes(config.task, tuple(config.hidden_layer_sizes))
     descriptors = sizes.descriptors
     archive = config.num_centroids * (sizes.parameters + 1 + 2 * descriptors) * FLOAT_BYTES
@@ -276,9 +277,6 @@ def fit_sweep(
     `runs_per_step` as in `run_sweep`: -1 lets the device choose (one run at a time on a
     CPU; on an accelerator as many as fit, all of them if they do), None all of them.
     """
-    from smol_dsl.runner.config import RunError
-    from smol_dsl.runner.engine import default_runs_per_step
-
     memory = device_memory(list(devices))
     index, parts = part
 
