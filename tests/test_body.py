@@ -13,6 +13,8 @@ from smol_dsl.tasks import TASK_NAMES, make_task, task_spec
 from smol_dsl.tasks.base import deterministic_init_state, with_sys
 from smol_dsl.tasks.body import modulation, scale_gear
 
+pytestmark = pytest.mark.slow  # every test here compiles Brax physics
+
 EPISODE = 50  # the episodes of conftest's walker and cheetah
 BATCH = 8
 CHANNELS = tuple(

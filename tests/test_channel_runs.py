@@ -21,6 +21,8 @@ from smol_dsl.runner.engine import Engine, shared_engine
 from smol_dsl.runner.progress import ProgressBar
 from smol_dsl.tasks import make_task
 
+pytestmark = pytest.mark.slow  # every test here compiles Brax physics
+
 SMALL = dict(
     evaluations=16 * 21,
     batch_size=16,

@@ -56,6 +56,7 @@ def test_paper_ant_archive_is_300_mb_per_run_and_24_gb_for_80_runs():
     assert footprint.evaluations == 80 * (10_000_000 + 99 * 1024)
 
 
+@pytest.mark.slow
 def test_batch_estimate_is_within_twice_the_compiled_programs_memory():
     """The arithmetic against XLA's own figure for the compiled generation program."""
     config = preset_config("walker2d", "quick", batch_size=32, episode_length=20, num_centroids=64)

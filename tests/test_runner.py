@@ -56,6 +56,7 @@ def human_run(task, library, tmp_path_factory):
     return run_experiment(task, library["human"], small_config(), out_dir=out)
 
 
+@pytest.mark.slow
 def test_phases_follow_the_schedule(human_run, library):
     config = human_run.config
     expected = np.asarray(library["human"].phase_alphas(config.num_phases, schedule_key(config.seed)))
@@ -69,6 +70,7 @@ def test_phases_follow_the_schedule(human_run, library):
     assert human_run.final["alpha"] == 1.0  # the last phase is on the standard body
 
 
+@pytest.mark.slow
 def test_budget_and_reevaluation_counts(human_run):
     rows = human_run.metrics
     config = human_run.config
@@ -83,6 +85,7 @@ def test_budget_and_reevaluation_counts(human_run):
     assert rows[-1]["reevaluations"] > 0
 
 
+@pytest.mark.slow
 def test_run_directory(human_run, library):
     out = human_run.out_dir
     for name in (
@@ -118,6 +121,7 @@ def test_run_directory(human_run, library):
     assert archive.fitnesses.max() == pytest.approx(human_run.final["max_fitness"])
 
 
+@pytest.mark.slow
 def test_archive_elites_replay_to_their_fitness(human_run, task):
     archive = load_archive(human_run.out_dir)
     best = archive.best_cell
@@ -127,12 +131,14 @@ def test_archive_elites_replay_to_their_fitness(human_run, task):
     np.testing.assert_allclose(np.asarray(descriptor[0]), archive.descriptors[best], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_same_seed_same_results(task, library, human_run):
     again = run_experiment(task, library["human"], small_config())
     assert again.metrics == human_run.metrics
     np.testing.assert_array_equal(np.asarray(again.repertoire.fitnesses), np.asarray(human_run.repertoire.fitnesses))
 
 
+@pytest.mark.slow
 def test_resume_after_interruption_matches_an_uninterrupted_run(task, library, human_run, tmp_path):
     out = tmp_path / "interrupted"
     partial = run_experiment(task, library["human"], small_config(), out_dir=out, stop_after_generation=6)
@@ -149,6 +155,7 @@ def test_resume_after_interruption_matches_an_uninterrupted_run(task, library, h
         np.testing.assert_array_equal(ours[name], theirs[name])
 
 
+@pytest.mark.slow
 def test_resume_refuses_other_settings(task, library, human_run, tmp_path):
     out = tmp_path / "copy"
     shutil.copytree(human_run.out_dir, out)
@@ -160,6 +167,7 @@ def test_resume_refuses_other_settings(task, library, human_run, tmp_path):
         run_experiment(task, library["smol"], small_config(), out_dir=tmp_path / "none", resume=True)
 
 
+@pytest.mark.slow
 def test_extinction_of_every_elite_reseeds(task):
     everyone_dies = smol_dsl.parse("extinction 100%\n0% .. 100%: tail\n")
     result = run_experiment(task, everyone_dies, small_config())
@@ -183,6 +191,7 @@ def filled(repertoire):
     return int(np.sum(np.asarray(repertoire.fitnesses) > -np.inf))
 
 
+@pytest.mark.slow
 def test_extinction_removes_about_p_of_the_elites(task):
     engine, start, alpha = one_run_engine(task)
     centroids = cvt_centroids(256, task.descriptor_low, task.descriptor_high, 5000, jax.random.key(0))
@@ -202,6 +211,7 @@ def test_extinction_removes_about_p_of_the_elites(task):
     assert reevaluated(1.0, 0) == 0
 
 
+@pytest.mark.slow
 def test_non_finite_results_never_enter_the_archive(task, monkeypatch):
     real_score = task.score
 
@@ -273,6 +283,7 @@ CLI_RUN = [
 ]
 
 
+@pytest.mark.slow
 def test_kill_9_then_resume_equals_uninterrupted_run(tmp_path):
     whole = _cli(*CLI_RUN, "--out", "whole", cwd=tmp_path)
     killed = _cli(*CLI_RUN, "--out", "killed", cwd=tmp_path)
@@ -331,6 +342,7 @@ BUNDLED_TASKS = ("walker2d", "halfcheetah", "ant_omni", "hopper", "ant_uni")
 
 
 @pytest.mark.parametrize("task_name", BUNDLED_TASKS)
+@pytest.mark.slow
 def test_every_task_runs_under_every_library_schedule(library, task_name):
     """Every bundled schedule whose channels the task's body has, trained together (one
     program per task, its body the union of their channels); the others refused, located,

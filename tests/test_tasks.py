@@ -42,6 +42,7 @@ def _qdax_scores(qdax_name, task, params, gear_scale=None, feet=None):
 
 
 @pytest.mark.parametrize(("fixture", "qdax_name"), [("walker", "walker2d_uni"), ("cheetah", "halfcheetah_uni")])
+@pytest.mark.slow
 def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
     task = request.getfixturevalue(fixture)
     params = task.init_policies(jax.random.key(1), BATCH)
@@ -52,6 +53,7 @@ def test_alpha_one_equals_qdax_uni_task(request, fixture, qdax_name):
     assert descriptors.shape == (BATCH, 2)
 
 
+@pytest.mark.slow
 def test_hopper_at_alpha_one_equals_qdax_hopper_uni():
     task = make_task("hopper", episode_length=EPISODE)
     params = task.init_policies(jax.random.key(1), BATCH)
@@ -62,6 +64,7 @@ def test_hopper_at_alpha_one_equals_qdax_hopper_uni():
     assert descriptors.shape == (BATCH, 1) and len(set(np.asarray(descriptors)[:, 0])) > 1
 
 
+@pytest.mark.slow
 def test_ant_uni_at_alpha_one_equals_qdax_ant_uni_with_the_lower_legs_as_feet():
     """QDax 0.5's ant_uni looks for Brax v1's feet ("$ Body 4", ...), which Brax v2's ant lacks
     (its lower legs are unnamed links), so its descriptors are empty: the test gives QDax's
@@ -78,6 +81,7 @@ def test_ant_uni_at_alpha_one_equals_qdax_ant_uni_with_the_lower_legs_as_feet():
 
 
 @pytest.mark.parametrize("alpha", [0.5, 1.5])
+@pytest.mark.slow
 def test_alpha_equals_plain_brax_env_with_scaled_gear(walker, alpha):
     params = walker.init_policies(jax.random.key(2), BATCH)
     fitnesses, descriptors = walker.scoring_fn()(params, jnp.array([alpha]), qdax_start(walker))
@@ -86,6 +90,7 @@ def test_alpha_equals_plain_brax_env_with_scaled_gear(walker, alpha):
     np.testing.assert_allclose(np.asarray(descriptors), expected_descriptors, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_alpha_changes_the_physics_without_recompiling(walker):
     params = walker.init_policies(jax.random.key(4), BATCH)
     score = walker.scoring_fn()
@@ -95,6 +100,7 @@ def test_alpha_changes_the_physics_without_recompiling(walker):
     assert not np.allclose(results[0], results[2])
 
 
+@pytest.mark.slow
 def test_ant_omni_scores_final_position_and_energy():
     task = make_task("ant_omni", episode_length=20, hidden_layer_sizes=(16, 16))
     params = task.init_policies(jax.random.key(0), 4)
@@ -140,6 +146,7 @@ def test_the_episode_start_comes_from_the_seed_alone(walker):
     assert not np.array_equal(np.asarray(walker.episode_start(0).obs), np.asarray(walker.episode_start(7).obs))
 
 
+@pytest.mark.slow
 def test_modulation_is_the_hook_that_changes_the_body(walker):
     """A task whose `modulation` scales the gear by 2 alpha equals the standard task at 2 alpha."""
     import dataclasses
@@ -207,6 +214,7 @@ print("built")
 """
 
 
+@pytest.mark.slow
 def test_no_warp_brax_or_mujoco_noise(tmp_path):
     """MJX's Warp import lines, Brax's maintenance warning and MuJoCo's MUJOCO_LOG.TXT stay out."""
     import os
