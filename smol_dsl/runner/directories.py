@@ -67,12 +67,12 @@ def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig
     if resume:
         return _resume_run_directory(directory, schedule, config)
     if non_empty(directory):
-        raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
+        raise busy(directory)
     make_directory(directory, "run")
     lock = lock_directory(directory, "run", resume=False)
     try:
         if non_empty(directory):  # another process set it up since we looked
-            raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
+            raise busy(directory)
         set_up(directory, lambda: write_run_files(directory, config, schedule))
     except BaseException:
         lock.release()
@@ -134,6 +134,11 @@ def check_out_dir(directory: Path) -> None:
             f"--out {directory}: {parent} is a file, not a directory, so nothing can be created under it; "
             "give another --out"
         )
+
+
+def busy(directory: Path) -> RunError:
+    """The refusal of a new run or sweep in a directory that holds something already."""
+    return RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
 
 
 def non_empty(directory: Path) -> bool:
@@ -270,41 +275,19 @@ def prepare_sweep_directory(
     """
     check_out_dir(directory)
     description = sweep_description(every, config)
-    sweep_file = directory / SWEEP_FILE
     locks = contextlib.ExitStack()
     try:
-        if resume and not sweep_file.is_file():
-            if (directory / CONFIG_FILE).is_file():
-                raise RunError(
-                    f"{directory} is a run directory, not a sweep's: resume it with `smol-dsl run ... --resume`"
-                )
-            raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
-        if not resume:
-            busy = [d for d in ([directory] if not shared else [directory / r.name for r in runs]) if non_empty(d)]
-            if busy:
-                raise RunError(
-                    f"{busy[0]} already exists and is not empty; use --resume to continue it or another --out"
-                )
-            make_directory(directory, "sweep")
+        if resume:
+            _check_sweep_to_resume(directory)
+        else:
+            _make_sweep_directory(directory, [directory / run.name for run in runs] if shared else [directory])
         if not shared:
-            locks.enter_context(lock_directory(directory, "sweep", resume))
-            if not resume and non_empty(directory):  # another process started one since we looked
-                raise RunError(
-                    f"{directory} already exists and is not empty; use --resume to continue it or another --out"
-                )
-        saved = read_json_object(sweep_file, "sweep") if sweep_file.is_file() else None
-        if saved is not None and saved != description and (resume or shared):
-            raise RunError(
-                f"{directory} was started with different settings, schedules or seeds; resume it with the same "
-                "command line: " + "; ".join(_sweep_differences(saved, description, directory))
-            )
+            locks.enter_context(_lock_sweep_directory(directory, resume))
+        _check_sweep_file(directory, description, compare=resume or shared)
         if not resume:
             set_up(directory, lambda: write_text(directory / SWEEP_FILE, json.dumps(description, indent=2)))
         for run in runs:
-            run_directory = directory / run.name
-            # a run directory deleted since the sweep started is set up again; its checkpoint is the sweep's
-            again = resume and not (run_directory / CONFIG_FILE).exists() and not non_empty(run_directory)
-            locks.enter_context(prepare_run_directory(run_directory, run.schedule, run.config, resume and not again))
+            locks.enter_context(_prepare_sweep_run(directory / run.name, run, resume))
         if resume:
             _check_process_count(directory, checkpoint_name)
             remove_stale_temporaries(directory, prefix=f"{checkpoint_name}.")
@@ -312,6 +295,53 @@ def prepare_sweep_directory(
         locks.close()
         raise
     return locks
+
+
+def _check_sweep_to_resume(directory: Path) -> None:
+    """Refuse to resume a directory that holds no sweep, saying what it holds instead."""
+    if (directory / SWEEP_FILE).is_file():
+        return
+    if (directory / CONFIG_FILE).is_file():
+        raise RunError(f"{directory} is a run directory, not a sweep's: resume it with `smol-dsl run ... --resume`")
+    raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
+
+
+def _make_sweep_directory(directory: Path, own: list[Path]) -> None:
+    """Create a new sweep's directory, refusing if any directory this process would write
+    (`own`: the sweep's, or its runs' where processes share it) holds something already."""
+    taken = next((path for path in own if non_empty(path)), None)
+    if taken is not None:
+        raise busy(taken)
+    make_directory(directory, "sweep")
+
+
+def _lock_sweep_directory(directory: Path, resume: bool) -> DirectoryLock:
+    """The sweep directory's lock, held; a new sweep's directory must still be empty once
+    locked (another process may have started one there since it was looked at)."""
+    lock = lock_directory(directory, "sweep", resume)
+    if not resume and non_empty(directory):
+        lock.release()
+        raise busy(directory)
+    return lock
+
+
+def _check_sweep_file(directory: Path, description: dict[str, Any], compare: bool) -> None:
+    """Read sweep.json if there is one (a damaged one is refused); with `compare`, refuse
+    one that describes another sweep, naming what differs."""
+    sweep_file = directory / SWEEP_FILE
+    saved = read_json_object(sweep_file, "sweep") if sweep_file.is_file() else None
+    if compare and saved is not None and saved != description:
+        raise RunError(
+            f"{directory} was started with different settings, schedules or seeds; resume it with the same "
+            "command line: " + "; ".join(_sweep_differences(saved, description, directory))
+        )
+
+
+def _prepare_sweep_run(run_directory: Path, run: PlannedRun, resume: bool) -> DirectoryLock:
+    """Prepare one run directory of the sweep; on resume, one deleted since the sweep started
+    is set up again (the sweep's checkpoint holds its state)."""
+    again = resume and not (run_directory / CONFIG_FILE).exists() and not non_empty(run_directory)
+    return prepare_run_directory(run_directory, run.schedule, run.config, resume and not again)
 
 
 _CHECKPOINT_NAME = re.compile(r"sweep-checkpoint(?:-(\d+)-of-(\d+))?\.npz")
