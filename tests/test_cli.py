@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import smol_dsl
-from smol_dsl.cli import main
+from smol_dsl.cli import build_parser, main
 
 BROKEN = 'name "broken"\n0% .. 40%: linear 1 -> 2\n50% .. 100%: tail\n'
 
@@ -115,6 +115,8 @@ def test_help_and_version(capsys):
         assert caught.value.code == 0
     out = capsys.readouterr().out
     assert "symbolically" in out and "Figure 2" in out
+    assert "Bundled schedules: extinction-05" in out
+    assert build_parser().epilog.endswith(f"Bundled schedules: {', '.join(smol_dsl.library_names())}.")
     with pytest.raises(SystemExit):
         main(["--version"])
     assert smol_dsl.__version__ in capsys.readouterr().out
@@ -141,3 +143,17 @@ def test_plot_notes_phase_counts_without_an_alpha_one_phase(tmp_path, monkeypatc
     monkeypatch.chdir(tmp_path)
     assert main(["plot", "smol", "--phases", "7"]) == 0
     assert "no phase of SMOL runs wholly at alpha = 1" in capsys.readouterr().err
+
+
+def test_each_command_parses_its_own_options():
+    parser = build_parser()
+    run = parser.parse_args(["run", "walker2d", "human", "--seed", "3", "--phases", "12"])
+    sweep = parser.parse_args(["sweep", "walker2d", "human", "smol", "--seeds", "2", "--runs-per-step", "4"])
+    assert (run.command, run.schedules, run.seed, run.phases) == ("run", ["human"], 3, 12)
+    assert (sweep.command, sweep.schedules, sweep.seeds, sweep.runs_per_step) == ("sweep", ["human", "smol"], 2, 4)
+    # what a run has no option for is a sweep's default: one process, runs per step chosen by the devices
+    assert (run.num_processes, run.process_id, run.cluster, run.runs_per_step) == (None, None, False, None)
+    assert sweep.seed is None  # a sweep's shared settings carry no seed
+    assert parser.parse_args(["report", "d", "--metric", "coverage"]).metric == "coverage"
+    with pytest.raises(SystemExit):
+        parser.parse_args(["run", "walker2d", "human", "--seeds", "2"])  # sweep's option, not run's
