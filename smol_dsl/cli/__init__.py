@@ -13,12 +13,12 @@ import argparse
 from typing import TYPE_CHECKING
 
 from smol_dsl.cli import check, plot, report, run
-from smol_dsl.cli.common import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, exit_status
+from smol_dsl.cli.common import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, OPTIONS, exit_status
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ["EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
+__all__ = ["EXIT_INTERNAL", "EXIT_OK", "EXIT_USAGE", "OPTIONS", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -23,6 +23,30 @@ class UsageError(UserInputError):
     """Bad command-line input that argparse itself does not catch."""
 
 
+class Options(dict[str, str]):
+    """The command line's name for each setting the library's messages name (see
+    `smol_dsl.errors.Setting`); a RunConfig field without an option of its own is set by
+    the preset."""
+
+    def __missing__(self, name: str) -> str:
+        return f"{name} (set by --preset)"
+
+
+OPTIONS = Options(
+    task="TASK",
+    evaluations="--evals",
+    batch_size="--batch-size",
+    num_phases="--phases",
+    num_centroids="--centroids",
+    episode_length="--episode-length",
+    seed="--seed",
+    preset="--preset",
+    schedule="SCHEDULE",
+    schedules="SCHEDULE",
+    seeds="--first-seed/--seeds",
+)
+
+
 # -- option types ---------------------------------------------------------------------------
 
 
@@ -173,10 +197,10 @@ def exit_status(command: str, handle: Callable[[], int]) -> int:
 
 
 def usage_message(command: str, error: UserInputError) -> str:
-    """What the command prints for a user's error."""
+    """What the command prints for a user's error: the library's settings named as options."""
     if isinstance(error, ScheduleError):  # already "FILE:LINE:COL: error: ..." with an excerpt
         return str(error)
-    return f"smol-dsl {command}: error: {error}"
+    return f"smol-dsl {command}: error: {error.worded(OPTIONS)}"
 
 
 def os_error_text(error: OSError) -> str:

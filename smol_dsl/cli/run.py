@@ -157,11 +157,8 @@ class Training(ABC):
             common.print_errors(errors)
             return EXIT_USAGE
         config = _config(args)
-        try:
-            for schedule in schedules:
-                check_config(config, schedule)
-        except ValueError as error:
-            raise UsageError(str(error)) from None
+        for schedule in schedules:
+            check_config(config, schedule)
         part = sweep_part(args)
         out = Path(args.out) if args.out is not None else self.default_out(args, schedules, config)
         plan = Plan(args, schedules, config, self.seeds(args, config), part, out)

@@ -4,7 +4,9 @@ A run directory is created with the run's settings, schedule and certificate bef
 anything trains, and locked (smol_dsl.runner.lock) while a process writes it; resuming
 checks that the settings and schedule are the ones it was started with, naming each that
 differs. A sweep directory holds sweep.json and one run directory per (schedule, seed).
-Every refusal is a RunError that names the path and says what to do.
+Every refusal is a RunError that names the path and says what to do; a setting that
+differs is named as a `Setting` (a RunConfig field, or `schedules` and `seeds`), which the
+CLI words as its option.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.errors import Message, Setting
 from smol_dsl.rundir import CONFIG_FILE, LOCK_FILE, SCHEDULE_FILE, SWEEP_FILE, RunConfig, write_run_files, write_text
 from smol_dsl.runner.checkpoint import write_failure
 from smol_dsl.runner.config import RunError
@@ -42,19 +45,6 @@ def out_path(out_dir: str | Path | None) -> Path | None:
     if "\0" in str(out_dir):
         raise RunError(f"--out {str(out_dir)!r}: a path cannot hold a NUL character")
     return Path(out_dir)
-
-
-OPTIONS = {
-    "task": "TASK",
-    "evaluations": "--evals",
-    "batch_size": "--batch-size",
-    "num_phases": "--phases",
-    "num_centroids": "--centroids",
-    "episode_length": "--episode-length",
-    "seed": "--seed",
-    "preset": "--preset",
-}
-"""The command-line option that sets each RunConfig field; the preset sets the others."""
 
 
 def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig, resume: bool) -> DirectoryLock:
@@ -96,7 +86,7 @@ def _resume_run_directory(directory: Path, schedule: Schedule, config: RunConfig
         if differences:
             raise RunError(
                 f"{directory} was started with different settings; resume it with the same ones: "
-                + "; ".join(differences)
+                + Message.joined("; ", differences)
             )
         schedule_path = directory / SCHEDULE_FILE
         if not schedule_path.is_file():
@@ -209,18 +199,16 @@ def read_json_object(path: Path, what: str) -> dict[str, Any]:
 _MISSING = object()
 
 
-def setting_differences(saved: dict[str, Any], requested: dict[str, Any], what: str) -> list[str]:
+def setting_differences(saved: dict[str, Any], requested: dict[str, Any], what: str) -> list[Message]:
     """One line per setting that differs between a saved config.json and the one requested,
-    naming the option: "--batch-size: the run was started with 64, not 128"."""
+    in RunConfig's order, naming the setting: "batch_size: the run was started with 64, not 128"."""
     order = [field.name for field in dataclasses.fields(RunConfig)]
     names = order + sorted((set(saved) | set(requested)) - set(order))
     lines = []
     for name in names:
         old, new = saved.get(name, _MISSING), requested.get(name, _MISSING)
-        if old == new:
-            continue
-        option = OPTIONS.get(name, f"{name} (set by --preset)")
-        lines.append(f"{option}: the {what} was started with {_shown(old)}, not {_shown(new)}")
+        if old != new:
+            lines.append(Setting(name) + f": the {what} was started with {_shown(old)}, not {_shown(new)}")
     return lines
 
 
@@ -333,7 +321,7 @@ def _check_sweep_file(directory: Path, description: dict[str, Any], compare: boo
     if compare and saved is not None and saved != description:
         raise RunError(
             f"{directory} was started with different settings, schedules or seeds; resume it with the same "
-            "command line: " + "; ".join(_sweep_differences(saved, description, directory))
+            "command line: " + Message.joined("; ", _sweep_differences(saved, description, directory))
         )
 
 
@@ -373,22 +361,26 @@ def _processes(count: int) -> str:
     return "one process" if count == 1 else f"{count} processes (--num-processes {count})"
 
 
-def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], directory: Path) -> list[str]:
-    """What differs between a saved sweep.json and this sweep, one line per setting."""
+def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], directory: Path) -> list[Message | str]:
+    """What differs between a saved sweep.json and this sweep, one line per setting (the
+    schedules and seeds too)."""
     saved_config = saved.get("config")
-    lines = setting_differences(saved_config if isinstance(saved_config, dict) else {}, description["config"], "sweep")
+    lines: list[Message | str] = []
+    lines += setting_differences(saved_config if isinstance(saved_config, dict) else {}, description["config"], "sweep")
     saved_runs = (
         [r for r in saved.get("runs", []) if isinstance(r, dict)] if isinstance(saved.get("runs"), list) else []
     )
     task = str(saved.get("task", description["task"]))
     old_stems, new_stems = _stems(saved_runs, task), _stems(description["runs"], description["task"])
     if old_stems != new_stems:
-        lines.append(f"SCHEDULE: the sweep was started with {', '.join(old_stems)}, not {', '.join(new_stems)}")
+        lines.append(
+            Setting("schedules") + f": the sweep was started with {', '.join(old_stems)}, not {', '.join(new_stems)}"
+        )
     old_seeds, new_seeds = _seeds(saved_runs), _seeds(description["runs"])
     if old_seeds != new_seeds:
         lines.append(
-            f"--first-seed/--seeds: the sweep was started with seeds {_seed_list(old_seeds)}, "
-            f"not {_seed_list(new_seeds)}"
+            Setting("seeds")
+            + f": the sweep was started with seeds {_seed_list(old_seeds)}, not {_seed_list(new_seeds)}"
         )
     if not lines:
         sources = {r.get("name"): r.get("source") for r in saved_runs}
@@ -396,8 +388,9 @@ def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], direc
             if run["name"] in sources and sources[run["name"]] != run["source"]:
                 stem = _stems([run], description["task"])[0]
                 lines.append(
-                    f"SCHEDULE {stem}: its text is not the one the sweep was started with "
-                    f"(kept in {directory / run['name'] / 'schedule.sched'})"
+                    Setting("schedule")
+                    + f" {stem}: its text is not the one the sweep was started with "
+                    + f"(kept in {directory / run['name'] / 'schedule.sched'})"
                 )
                 break
     return lines or [f"{directory / SWEEP_FILE} does not describe this sweep"]
