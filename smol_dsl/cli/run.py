@@ -179,21 +179,19 @@ class Training(ABC):
 
     @abstractmethod
     def check_seeds(self, args: argparse.Namespace) -> None:
-        """Refuse seeds outside 0 .. 2**32 - 1, naming the option."""
-        raise NotImplementedError
+        """Refuse seeds outside 0 .. 2**32 - 1, naming the option, before anything loads."""
 
     @abstractmethod
     def seeds(self, args: argparse.Namespace, config: RunConfig) -> list[int]:
-        raise NotImplementedError
+        """The seeds to train, each with every schedule."""
 
     @abstractmethod
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
-        raise NotImplementedError
+        """The output directory without --out."""
 
     @abstractmethod
     def announcement(self, plan: Plan) -> str:
-        """What will run, before the output directory (printed before anything compiles)."""
-        raise NotImplementedError
+        """What will run, printed before anything compiles (the output directory follows)."""
 
     def note(self, config: RunConfig) -> str | None:
         """A note printed before training starts, if any."""
@@ -201,12 +199,11 @@ class Training(ABC):
 
     @abstractmethod
     def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
-        """Train (or resume), reporting to progress; the results of this process's runs."""
-        raise NotImplementedError
+        """Train (or resume), reporting to `progress`; the results of this process's runs."""
 
     @abstractmethod
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
-        raise NotImplementedError
+        """What is printed when training has ended."""
 
 
 class Run(Training):
