@@ -1,9 +1,75 @@
 """The errors a user can cause: `UserInputError`, the base of every error the CLI reports
-with exit status 2, and `ScheduleError` for everything a `.sched` file can get wrong."""
+with exit status 2, and `ScheduleError` for everything a `.sched` file can get wrong.
+
+A message that names a setting (a `RunConfig` field such as `evaluations`, an argument such
+as `schedules`) is a `Message` holding a `Setting`: `str(error)` names the setting as the
+library does, and `error.worded(names)` as a front end spells it. The CLI passes its
+options, so the same refusal reads "num_phases must be at least 1" in Python and "--phases
+must be at least 1" on the command line.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A setting that a message names: shown as `name` by `str()`, and as `names[name]` by
+    `worded(names)`. Joined to text with `+`, it makes a `Message`."""
+
+    name: str
+
+    def __str__(self) -> str:
+        return self.name
+
+    def __add__(self, other: str | Setting | Message) -> Message:
+        return Message((self,)) + other
+
+    def __radd__(self, other: str) -> Message:
+        return Message((other, self))
+
+
+@dataclass(frozen=True)
+class Message:
+    """A message as text and the settings it names, in order; built with `+` from strings,
+    settings and messages. `str()` names each setting by its own name."""
+
+    parts: tuple[str | Setting, ...] = ()
+
+    def __add__(self, other: str | Setting | Message) -> Message:
+        if isinstance(other, Message):
+            return Message(self.parts + other.parts)
+        return Message((*self.parts, other))
+
+    def __radd__(self, other: str) -> Message:
+        return Message((other, *self.parts))
+
+    @staticmethod
+    def joined(separator: str, items: Iterable[str | Setting | Message]) -> Message:
+        """The items with `separator` between them, as `separator.join` joins strings."""
+        message = Message()
+        for index, item in enumerate(items):
+            message = message + separator + item if index else message + item
+        return message
+
+    def worded(self, names: Mapping[str, str] | None = None) -> str:
+        """The text, each setting spelled as `names[setting]` where `names` has it (a mapping
+        may supply a default with `__missing__`), otherwise by its own name."""
+        return "".join(part if isinstance(part, str) else _spelled(part.name, names) for part in self.parts)
+
+    def __str__(self) -> str:
+        return self.worded()
+
+
+def _spelled(name: str, names: Mapping[str, str] | None) -> str:
+    if names is None:
+        return name
+    try:
+        return names[name]
+    except KeyError:
+        return name
 
 
 @dataclass(frozen=True)
@@ -21,8 +87,14 @@ class UserInputError(Exception):
     The message names the file or option and says what to do. The library raises subclasses
     (`ScheduleError`, `smol_dsl.runner.RunError`, `smol_dsl.results.report.ReportError`,
     `smol_dsl.rundir.RunDirectoryError`); the CLI prints the message and exits with
-    status 2, without a traceback.
+    status 2, without a traceback. The message is a string or a `Message`.
     """
+
+    def worded(self, names: Mapping[str, str]) -> str:
+        """The message with each setting it names spelled as `names` spells it (see `Message`);
+        the same as `str(self)` for a message that names none."""
+        message = self.args[0] if len(self.args) == 1 else None
+        return message.worded(names) if isinstance(message, Message) else str(self)
 
 
 class ScheduleError(UserInputError):

@@ -1,7 +1,9 @@
-"""The `smol-dsl` command line: check, plot, help, version and bad input."""
+"""The `smol-dsl` command line: check, plot, help, version, bad input, and the wording of the
+library's errors in the command line's options."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -10,7 +12,11 @@ from pathlib import Path
 import pytest
 
 import smol_dsl
-from smol_dsl.cli import main
+from smol_dsl.cli import OPTIONS, build_parser, main
+from smol_dsl.errors import Message, Setting, UserInputError
+from smol_dsl.runner import RunError, check_config, preset_config
+from smol_dsl.runner.config import ConfigError
+from smol_dsl.runner.directories import prepare_run_directory
 
 BROKEN = 'name "broken"\n0% .. 40%: linear 1 -> 2\n50% .. 100%: tail\n'
 
@@ -115,6 +121,8 @@ def test_help_and_version(capsys):
         assert caught.value.code == 0
     out = capsys.readouterr().out
     assert "symbolically" in out and "Figure 2" in out
+    assert "Bundled schedules: extinction-05" in out
+    assert build_parser().epilog.endswith(f"Bundled schedules: {', '.join(smol_dsl.library_names())}.")
     with pytest.raises(SystemExit):
         main(["--version"])
     assert smol_dsl.__version__ in capsys.readouterr().out
@@ -141,3 +149,64 @@ def test_plot_notes_phase_counts_without_an_alpha_one_phase(tmp_path, monkeypatc
     monkeypatch.chdir(tmp_path)
     assert main(["plot", "smol", "--phases", "7"]) == 0
     assert "no phase of SMOL runs wholly at alpha = 1" in capsys.readouterr().err
+
+
+def test_each_command_parses_its_own_options():
+    parser = build_parser()
+    run = parser.parse_args(["run", "walker2d", "human", "--seed", "3", "--phases", "12"])
+    sweep = parser.parse_args(["sweep", "walker2d", "human", "smol", "--seeds", "2", "--runs-per-step", "4"])
+    assert (run.command, run.schedules, run.seed, run.phases) == ("run", ["human"], 3, 12)
+    assert (sweep.command, sweep.schedules, sweep.seeds, sweep.runs_per_step) == ("sweep", ["human", "smol"], 2, 4)
+    # what a run has no option for is a sweep's default: one process, runs per step chosen by the devices
+    assert (run.num_processes, run.process_id, run.cluster, run.runs_per_step) == (None, None, False, None)
+    assert sweep.seed is None  # a sweep's shared settings carry no seed
+    assert parser.parse_args(["report", "d", "--metric", "coverage"]).metric == "coverage"
+    with pytest.raises(SystemExit):
+        parser.parse_args(["run", "walker2d", "human", "--seeds", "2"])  # sweep's option, not run's
+
+
+def test_a_message_names_a_setting_by_its_name_or_as_told():
+    message = "use " + Setting("evaluations") + " 10 or more, fewer " + Setting("num_phases")
+    assert isinstance(message, Message)
+    assert str(message) == "use evaluations 10 or more, fewer num_phases"
+    assert message.worded({"evaluations": "--evals"}) == "use --evals 10 or more, fewer num_phases"
+    assert str(Message.joined("; ", ["a", Setting("b"), "c" + Setting("d")])) == "a; b; cd"
+    error = UserInputError(message)
+    assert str(error) == str(message) and error.worded(OPTIONS) == "use --evals 10 or more, fewer --phases"
+    assert UserInputError("plain text").worded(OPTIONS) == "plain text"
+    # a RunConfig field without an option of its own is the preset's
+    assert (Setting("hidden_layer_sizes") + "").worded(OPTIONS) == "hidden_layer_sizes (set by --preset)"
+
+
+def test_the_library_names_settings_and_the_command_line_its_options(library, tmp_path, monkeypatch, capsys):
+    """check_config and a refused resume name RunConfig's fields in Python; `smol-dsl run` says
+    the same with its options, word for word as its users know them."""
+    with pytest.raises(ConfigError) as caught:
+        check_config(preset_config("walker2d", num_phases=5), library["human"])
+    assert isinstance(caught.value, ValueError) and isinstance(caught.value, RunError)
+    assert str(caught.value).endswith("so the run would not end on its final body; use num_phases 10 or more")
+    assert caught.value.worded(OPTIONS).endswith("; use --phases 10 or more")
+    with pytest.raises(ConfigError, match=r"use evaluations 2688 or more, fewer num_phases, or a smaller batch_size$"):
+        check_config(preset_config("walker2d", evaluations=100), library["human"])
+    with pytest.raises(ConfigError, match=r"^num_centroids must be at least 2, not 1$"):
+        check_config(preset_config("walker2d", num_centroids=1), library["human"])
+
+    small = dict(evaluations=96, batch_size=8, num_phases=10, num_centroids=16, episode_length=10)
+    out = tmp_path / "run"
+    prepare_run_directory(out, library["human"], preset_config("walker2d", **small), resume=False).release()
+    with pytest.raises(RunError) as caught:
+        prepare_run_directory(
+            out, library["human"], preset_config("walker2d", **{**small, "batch_size": 16}), resume=True
+        )
+    assert str(caught.value).endswith("resume it with the same ones: batch_size: the run was started with 8, not 16")
+    assert caught.value.worded(OPTIONS).endswith(": --batch-size: the run was started with 8, not 16")
+
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))  # `run` sets it; restored after the test
+    assert main(["run", "walker2d", "human", "--phases", "5", "--out", str(tmp_path / "new")]) == 2
+    assert capsys.readouterr().err == (
+        "smol-dsl run: error: with 5 phases no phase lies wholly in the final-body tail of SMOL-Human (from 90%), "
+        "so the run would not end on its final body; use --phases 10 or more\n"
+    )
+    assert main(["run", "walker2d", "human", "--evals", "100", "--out", str(tmp_path / "new")]) == 2
+    assert capsys.readouterr().err.endswith("; use --evals 2688 or more, fewer --phases, or a smaller --batch-size\n")
+    assert not (tmp_path / "new").exists()

@@ -17,7 +17,7 @@ import jax
 import numpy as np
 import pytest
 
-from smol_dsl.cli import main
+from smol_dsl.cli import OPTIONS, main
 from smol_dsl.errors import UserInputError
 from smol_dsl.rundir import LOCK_FILE, atomic_write
 from smol_dsl.rundir import files as rundir_files
@@ -545,8 +545,12 @@ def test_a_refused_sweep_resume_names_schedules_seeds_and_settings(library, tmp_
     changed = plan_sweep([library["human"]], [0, 1], other)
     with pytest.raises(RunError) as caught:
         prepare_sweep_directory(out, changed, changed, other, True, False, "sweep-checkpoint.npz")
-    message = str(caught.value)
-    assert "--centroids: the sweep was started with 16, not 32" in message
-    assert "SCHEDULE: the sweep was started with human, smol, not human" in message
-    assert "--first-seed/--seeds: the sweep was started with seeds 0..2, not 0, 1" in message
-    assert "{" not in message
+    message = str(caught.value)  # the library names its settings
+    assert "num_centroids: the sweep was started with 16, not 32" in message
+    assert "; schedules: the sweep was started with human, smol, not human" in message
+    assert "; seeds: the sweep was started with seeds 0..2, not 0, 1" in message
+    assert "{" not in message and "--" not in message
+    worded = caught.value.worded(OPTIONS)  # the command line, its options
+    assert "--centroids: the sweep was started with 16, not 32" in worded
+    assert "SCHEDULE: the sweep was started with human, smol, not human" in worded
+    assert "--first-seed/--seeds: the sweep was started with seeds 0..2, not 0, 1" in worded

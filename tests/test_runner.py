@@ -242,12 +242,12 @@ def test_non_finite_results_never_enter_the_archive(task, monkeypatch):
 
 
 def test_config_checks(library):
-    with pytest.raises(ValueError, match="--phases 10 or more"):
+    with pytest.raises(ValueError, match="use num_phases 10 or more"):
         check_config(small_config(num_phases=9), library["human"])
     check_config(small_config(num_phases=9), library["vanilla"])  # vanilla is all tail
-    with pytest.raises(ValueError, match="--evals 2688 or more"):
+    with pytest.raises(ValueError, match="use evaluations 2688 or more"):
         check_config(small_config(num_phases=20, batch_size=128, evaluations=1000), library["smol"])
-    with pytest.raises(ValueError, match="--centroids must be at least 2"):
+    with pytest.raises(ValueError, match="num_centroids must be at least 2"):
         check_config(small_config(num_centroids=1), library["smol"])
     paper = preset_config("walker2d", "paper")
     assert (paper.evaluations, paper.batch_size, paper.num_phases, paper.num_centroids, paper.episode_length) == (

@@ -261,10 +261,11 @@ def test_cli_sweep_bad_schedule_file(tmp_path, capsys):
 
 
 def test_processes_share_a_sweep_by_index(schedules, monkeypatch):
-    from smol_dsl.cli import _sweep_part, build_parser
+    from smol_dsl.cli import build_parser
+    from smol_dsl.cli.run import sweep_part
 
     def part(*flags):
-        return _sweep_part(build_parser().parse_args(["sweep", "walker2d", "human", *flags]))
+        return sweep_part(build_parser().parse_args(["sweep", "walker2d", "human", *flags]))
 
     assert part() == (0, 1)
     assert part("--num-processes", "3", "--process-id", "2") == (2, 3)

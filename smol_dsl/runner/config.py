@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from smol_dsl.errors import UserInputError
+from smol_dsl.errors import Setting, UserInputError
 from smol_dsl.rundir.config import RunConfig
 from smol_dsl.tasks import PRESET_NAMES, task_spec
 
@@ -17,7 +17,16 @@ if TYPE_CHECKING:
 class RunError(UserInputError):
     """A run that cannot start or go on: bad settings, an output directory that would be lost
     or is in use, a damaged checkpoint, a disk that cannot be written. The message names the
-    file or option and says what to do."""
+    file or setting and says what to do."""
+
+
+class ConfigError(RunError, ValueError):
+    """Settings that cannot make a fair run; the message names the `RunConfig` fields to
+    change (as `Setting`s, so that the CLI can name its options instead)."""
+
+
+LEAST_SETTINGS = {"evaluations": 1, "batch_size": 1, "num_phases": 1, "num_centroids": 2, "episode_length": 1}
+"""The smallest value of each count a run can use."""
 
 
 # The paper (Table "Hyperparameters for each task"): 1e7 evaluations, 100 phases, 1024 CVT
@@ -41,31 +50,32 @@ def preset_config(task: str, preset: str = "quick", **overrides: Any) -> RunConf
 
 
 def check_config(config: RunConfig, schedule: Schedule) -> None:
-    """Raise ValueError, with a fix, for settings that cannot make a fair run, and a
-    ScheduleError, located, for a channel naming actuators or links the task lacks."""
+    """Raise a ConfigError, naming the settings to change, for settings that cannot make a
+    fair run, and a ScheduleError, located, for a channel naming actuators or links the task
+    lacks."""
     task_spec(config.task).check_schedule(schedule)
-    for name, value, least in (
-        ("--evals", config.evaluations, 1),
-        ("--batch-size", config.batch_size, 1),
-        ("--phases", config.num_phases, 1),
-        ("--centroids", config.num_centroids, 2),
-        ("--episode-length", config.episode_length, 1),
-    ):
+    for name, least in LEAST_SETTINGS.items():
+        value = getattr(config, name)
         if value < least:
-            raise ValueError(f"{name} must be at least {least}, not {value}")
+            raise ConfigError(Setting(name) + f" must be at least {least}, not {value}")
     if config.generations < config.num_phases:
         need = (config.num_phases + 1) * config.batch_size
-        raise ValueError(
+        raise ConfigError(
             f"a budget of {config.evaluations} evaluations at batch size {config.batch_size} gives "
             f"{max(config.generations, 0)} generations after the initial population, fewer than the "
-            f"{config.num_phases} phases; use --evals {need} or more, fewer --phases, or a smaller --batch-size"
+            f"{config.num_phases} phases; use "
+            + Setting("evaluations")
+            + f" {need} or more, fewer "
+            + Setting("num_phases")
+            + ", or a smaller "
+            + Setting("batch_size")
         )
     if schedule.tail_phases(config.num_phases) < 1:
         least = next(n for n in range(1, 100_001) if schedule.tail_phases(n) >= 1)
-        raise ValueError(
+        raise ConfigError(
             f"with {config.num_phases} phases no phase lies wholly in the final-body tail of {schedule.name} "
             f"(from {float(schedule.tail_start):.0%}), so the run would not end on its final body; "
-            f"use --phases {least} or more"
+            "use " + Setting("num_phases") + f" {least} or more"
         )
     # The certificates prove every phase's factors finite and positive in float32; evaluate
     # the table anyway before anything is created, so a defect can never waste a run (a

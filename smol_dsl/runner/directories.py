@@ -4,7 +4,9 @@ A run directory is created with the run's settings, schedule and certificate bef
 anything trains, and locked (smol_dsl.runner.lock) while a process writes it; resuming
 checks that the settings and schedule are the ones it was started with, naming each that
 differs. A sweep directory holds sweep.json and one run directory per (schedule, seed).
-Every refusal is a RunError that names the path and says what to do.
+Every refusal is a RunError that names the path and says what to do; a setting that
+differs is named as a `Setting` (a RunConfig field, or `schedules` and `seeds`), which the
+CLI words as its option.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.errors import Message, Setting
 from smol_dsl.rundir import CONFIG_FILE, LOCK_FILE, SCHEDULE_FILE, SWEEP_FILE, RunConfig, write_run_files, write_text
 from smol_dsl.runner.checkpoint import write_failure
 from smol_dsl.runner.config import RunError
@@ -44,19 +47,6 @@ def out_path(out_dir: str | Path | None) -> Path | None:
     return Path(out_dir)
 
 
-OPTIONS = {
-    "task": "TASK",
-    "evaluations": "--evals",
-    "batch_size": "--batch-size",
-    "num_phases": "--phases",
-    "num_centroids": "--centroids",
-    "episode_length": "--episode-length",
-    "seed": "--seed",
-    "preset": "--preset",
-}
-"""The command-line option that sets each RunConfig field; the preset sets the others."""
-
-
 def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig, resume: bool) -> DirectoryLock:
     """Check a directory to resume, or create one and write the run's settings into it.
 
@@ -67,12 +57,12 @@ def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig
     if resume:
         return _resume_run_directory(directory, schedule, config)
     if non_empty(directory):
-        raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
+        raise busy(directory)
     make_directory(directory, "run")
     lock = lock_directory(directory, "run", resume=False)
     try:
         if non_empty(directory):  # another process set it up since we looked
-            raise RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
+            raise busy(directory)
         set_up(directory, lambda: write_run_files(directory, config, schedule))
     except BaseException:
         lock.release()
@@ -96,7 +86,7 @@ def _resume_run_directory(directory: Path, schedule: Schedule, config: RunConfig
         if differences:
             raise RunError(
                 f"{directory} was started with different settings; resume it with the same ones: "
-                + "; ".join(differences)
+                + Message.joined("; ", differences)
             )
         schedule_path = directory / SCHEDULE_FILE
         if not schedule_path.is_file():
@@ -134,6 +124,11 @@ def check_out_dir(directory: Path) -> None:
             f"--out {directory}: {parent} is a file, not a directory, so nothing can be created under it; "
             "give another --out"
         )
+
+
+def busy(directory: Path) -> RunError:
+    """The refusal of a new run or sweep in a directory that holds something already."""
+    return RunError(f"{directory} already exists and is not empty; use --resume to continue it or another --out")
 
 
 def non_empty(directory: Path) -> bool:
@@ -204,18 +199,16 @@ def read_json_object(path: Path, what: str) -> dict[str, Any]:
 _MISSING = object()
 
 
-def setting_differences(saved: dict[str, Any], requested: dict[str, Any], what: str) -> list[str]:
+def setting_differences(saved: dict[str, Any], requested: dict[str, Any], what: str) -> list[Message]:
     """One line per setting that differs between a saved config.json and the one requested,
-    naming the option: "--batch-size: the run was started with 64, not 128"."""
+    in RunConfig's order, naming the setting: "batch_size: the run was started with 64, not 128"."""
     order = [field.name for field in dataclasses.fields(RunConfig)]
     names = order + sorted((set(saved) | set(requested)) - set(order))
     lines = []
     for name in names:
         old, new = saved.get(name, _MISSING), requested.get(name, _MISSING)
-        if old == new:
-            continue
-        option = OPTIONS.get(name, f"{name} (set by --preset)")
-        lines.append(f"{option}: the {what} was started with {_shown(old)}, not {_shown(new)}")
+        if old != new:
+            lines.append(Setting(name) + f": the {what} was started with {_shown(old)}, not {_shown(new)}")
     return lines
 
 
@@ -270,41 +263,19 @@ def prepare_sweep_directory(
     """
     check_out_dir(directory)
     description = sweep_description(every, config)
-    sweep_file = directory / SWEEP_FILE
     locks = contextlib.ExitStack()
     try:
-        if resume and not sweep_file.is_file():
-            if (directory / CONFIG_FILE).is_file():
-                raise RunError(
-                    f"{directory} is a run directory, not a sweep's: resume it with `smol-dsl run ... --resume`"
-                )
-            raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
-        if not resume:
-            busy = [d for d in ([directory] if not shared else [directory / r.name for r in runs]) if non_empty(d)]
-            if busy:
-                raise RunError(
-                    f"{busy[0]} already exists and is not empty; use --resume to continue it or another --out"
-                )
-            make_directory(directory, "sweep")
+        if resume:
+            _check_sweep_to_resume(directory)
+        else:
+            _make_sweep_directory(directory, [directory / run.name for run in runs] if shared else [directory])
         if not shared:
-            locks.enter_context(lock_directory(directory, "sweep", resume))
-            if not resume and non_empty(directory):  # another process started one since we looked
-                raise RunError(
-                    f"{directory} already exists and is not empty; use --resume to continue it or another --out"
-                )
-        saved = read_json_object(sweep_file, "sweep") if sweep_file.is_file() else None
-        if saved is not None and saved != description and (resume or shared):
-            raise RunError(
-                f"{directory} was started with different settings, schedules or seeds; resume it with the same "
-                "command line: " + "; ".join(_sweep_differences(saved, description, directory))
-            )
+            locks.enter_context(_lock_sweep_directory(directory, resume))
+        _check_sweep_file(directory, description, compare=resume or shared)
         if not resume:
             set_up(directory, lambda: write_text(directory / SWEEP_FILE, json.dumps(description, indent=2)))
         for run in runs:
-            run_directory = directory / run.name
-            # a run directory deleted since the sweep started is set up again; its checkpoint is the sweep's
-            again = resume and not (run_directory / CONFIG_FILE).exists() and not non_empty(run_directory)
-            locks.enter_context(prepare_run_directory(run_directory, run.schedule, run.config, resume and not again))
+            locks.enter_context(_prepare_sweep_run(directory / run.name, run, resume))
         if resume:
             _check_process_count(directory, checkpoint_name)
             remove_stale_temporaries(directory, prefix=f"{checkpoint_name}.")
@@ -312,6 +283,53 @@ def prepare_sweep_directory(
         locks.close()
         raise
     return locks
+
+
+def _check_sweep_to_resume(directory: Path) -> None:
+    """Refuse to resume a directory that holds no sweep, saying what it holds instead."""
+    if (directory / SWEEP_FILE).is_file():
+        return
+    if (directory / CONFIG_FILE).is_file():
+        raise RunError(f"{directory} is a run directory, not a sweep's: resume it with `smol-dsl run ... --resume`")
+    raise RunError(f"{directory} holds no sweep to resume (no {SWEEP_FILE}); start it without --resume")
+
+
+def _make_sweep_directory(directory: Path, own: list[Path]) -> None:
+    """Create a new sweep's directory, refusing if any directory this process would write
+    (`own`: the sweep's, or its runs' where processes share it) holds something already."""
+    taken = next((path for path in own if non_empty(path)), None)
+    if taken is not None:
+        raise busy(taken)
+    make_directory(directory, "sweep")
+
+
+def _lock_sweep_directory(directory: Path, resume: bool) -> DirectoryLock:
+    """The sweep directory's lock, held; a new sweep's directory must still be empty once
+    locked (another process may have started one there since it was looked at)."""
+    lock = lock_directory(directory, "sweep", resume)
+    if not resume and non_empty(directory):
+        lock.release()
+        raise busy(directory)
+    return lock
+
+
+def _check_sweep_file(directory: Path, description: dict[str, Any], compare: bool) -> None:
+    """Read sweep.json if there is one (a damaged one is refused); with `compare`, refuse
+    one that describes another sweep, naming what differs."""
+    sweep_file = directory / SWEEP_FILE
+    saved = read_json_object(sweep_file, "sweep") if sweep_file.is_file() else None
+    if compare and saved is not None and saved != description:
+        raise RunError(
+            f"{directory} was started with different settings, schedules or seeds; resume it with the same "
+            "command line: " + Message.joined("; ", _sweep_differences(saved, description, directory))
+        )
+
+
+def _prepare_sweep_run(run_directory: Path, run: PlannedRun, resume: bool) -> DirectoryLock:
+    """Prepare one run directory of the sweep; on resume, one deleted since the sweep started
+    is set up again (the sweep's checkpoint holds its state)."""
+    again = resume and not (run_directory / CONFIG_FILE).exists() and not non_empty(run_directory)
+    return prepare_run_directory(run_directory, run.schedule, run.config, resume and not again)
 
 
 _CHECKPOINT_NAME = re.compile(r"sweep-checkpoint(?:-(\d+)-of-(\d+))?\.npz")
@@ -343,22 +361,26 @@ def _processes(count: int) -> str:
     return "one process" if count == 1 else f"{count} processes (--num-processes {count})"
 
 
-def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], directory: Path) -> list[str]:
-    """What differs between a saved sweep.json and this sweep, one line per setting."""
+def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], directory: Path) -> list[Message | str]:
+    """What differs between a saved sweep.json and this sweep, one line per setting (the
+    schedules and seeds too)."""
     saved_config = saved.get("config")
-    lines = setting_differences(saved_config if isinstance(saved_config, dict) else {}, description["config"], "sweep")
+    lines: list[Message | str] = []
+    lines += setting_differences(saved_config if isinstance(saved_config, dict) else {}, description["config"], "sweep")
     saved_runs = (
         [r for r in saved.get("runs", []) if isinstance(r, dict)] if isinstance(saved.get("runs"), list) else []
     )
     task = str(saved.get("task", description["task"]))
     old_stems, new_stems = _stems(saved_runs, task), _stems(description["runs"], description["task"])
     if old_stems != new_stems:
-        lines.append(f"SCHEDULE: the sweep was started with {', '.join(old_stems)}, not {', '.join(new_stems)}")
+        lines.append(
+            Setting("schedules") + f": the sweep was started with {', '.join(old_stems)}, not {', '.join(new_stems)}"
+        )
     old_seeds, new_seeds = _seeds(saved_runs), _seeds(description["runs"])
     if old_seeds != new_seeds:
         lines.append(
-            f"--first-seed/--seeds: the sweep was started with seeds {_seed_list(old_seeds)}, "
-            f"not {_seed_list(new_seeds)}"
+            Setting("seeds")
+            + f": the sweep was started with seeds {_seed_list(old_seeds)}, not {_seed_list(new_seeds)}"
         )
     if not lines:
         sources = {r.get("name"): r.get("source") for r in saved_runs}
@@ -366,8 +388,9 @@ def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], direc
             if run["name"] in sources and sources[run["name"]] != run["source"]:
                 stem = _stems([run], description["task"])[0]
                 lines.append(
-                    f"SCHEDULE {stem}: its text is not the one the sweep was started with "
-                    f"(kept in {directory / run['name'] / 'schedule.sched'})"
+                    Setting("schedule")
+                    + f" {stem}: its text is not the one the sweep was started with "
+                    + f"(kept in {directory / run['name'] / 'schedule.sched'})"
                 )
                 break
     return lines or [f"{directory / SWEEP_FILE} does not describe this sweep"]

@@ -1,0 +1,7 @@
+"""`python -m smol_dsl.cli`: the `smol-dsl` command."""
+
+import sys
+
+from smol_dsl.cli import main
+
+sys.exit(main())

@@ -1,0 +1,71 @@
+"""`smol-dsl report`: the paper's U-test table and figures from finished runs."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from smol_dsl.cli.common import EXIT_OK, UsageError
+
+if TYPE_CHECKING:
+    import argparse
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    report = commands.add_parser(
+        "report",
+        help="the paper's U-test table and figures from finished runs",
+        description="Collect the finished runs in the given directories (sweep or run directories, searched "
+        "recursively), and write the paper's table - median final score per schedule and one-sided "
+        "Mann-Whitney U p-values of 'column better than row' - as Markdown and LaTeX, the final scores, and "
+        "figures of median and interquartile range over seeds (PNG and PDF) with the final archives.",
+    )
+    report.add_argument("dirs", nargs="+", metavar="DIR", help="sweep or run directories")
+    report.add_argument("-o", "--out", metavar="OUT", help="output directory (default DIR/report for one DIR)")
+    report.add_argument(
+        "--force",
+        action="store_true",
+        help="replace the report already in the output directory (without it, an earlier report is kept "
+        "and nothing is written)",
+    )
+    report.add_argument(
+        "--metric",
+        default=None,
+        metavar="NAME",
+        help=f"final score: max_fitness, coverage or qd_score (default: the task's, {_default_metrics_help()})",
+    )
+    report.set_defaults(handle=write_report)
+
+
+def _default_metrics_help() -> str:
+    from smol_dsl.tasks import task_names, task_spec
+
+    by_metric: dict[str, list[str]] = {}
+    for name in task_names():
+        by_metric.setdefault(task_spec(name).default_metric, []).append(name)
+    return ", ".join(f"{metric} for {' and '.join(names)}" for metric, names in by_metric.items())
+
+
+def write_report(args: argparse.Namespace) -> int:
+    from smol_dsl.results import report as results_report
+
+    if args.metric is not None and args.metric not in results_report.METRICS:
+        raise UsageError(f"unknown metric {args.metric!r}; the metrics are {', '.join(results_report.METRICS)}")
+    if args.out is None and len(args.dirs) > 1:
+        raise UsageError("with several DIRs, say where the report goes with -o OUT")
+    if args.out is not None and not args.out.strip():
+        raise UsageError("-o: empty path; give the directory the report goes into (or leave -o out for DIR/report)")
+    out = Path(args.out) if args.out is not None else Path(args.dirs[0]) / "report"
+    report = results_report.write_report(args.dirs, out, args.metric, force=args.force)  # ReportError: exit 2
+    table = report.table
+    print(f"{table.task}, final {table.metric} ({sum(table.runs.values())} runs):\n")
+    print(table.markdown())
+    notes = table.notes()
+    for note in notes[:3]:
+        print(f"note: {note}", file=sys.stderr)
+    if len(notes) > 3:
+        more = len(notes) - 3
+        print(f"note: and {more} more pair{'s' if more > 1 else ''} like these", file=sys.stderr)
+    print(f"wrote {', '.join(str(f) for f in report.files)}")
+    return EXIT_OK

@@ -1,0 +1,412 @@
+"""`smol-dsl run` and `smol-dsl sweep`: train under schedules, one run, or every (schedule,
+seed) pair together.
+
+Both take the same steps, in `train`: check the task, --out and the seeds; load the schedules;
+make the settings and check them against each schedule; check the output directory; announce
+what will run; check that it fits the devices (and print what it needs); train with a
+progress bar; draw each finished run's figures; print a summary. `Run` and `Sweep` hold what
+differs: how seeds are given, where the output goes by default, what is announced, which
+runner trains and what the summary says.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from smol_dsl.cli import common
+from smol_dsl.cli.common import EXIT_OK, EXIT_USAGE, UsageError, positive_int, whole_number
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir import RunConfig
+    from smol_dsl.runner import RunResult
+    from smol_dsl.runner.footprint import Footprint
+
+LARGE_BYTES = 1e9  # a run or sweep this big on a device gets its footprint printed, whatever the preset
+
+CLUSTER_VARIABLES = (("SLURM_NTASKS", "SLURM_PROCID"), ("OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"))
+
+
+def add_parsers(commands: argparse._SubParsersAction) -> None:
+    _add_run_parser(commands)
+    _add_sweep_parser(commands)
+
+
+def _add_run_parser(commands: argparse._SubParsersAction) -> None:
+    run = commands.add_parser(
+        "run",
+        help="train locomotion controllers with MAP-Elites under a schedule",
+        description="Train MLP controllers for a Brax task with MAP-Elites while the schedule scales the "
+        "actuators' gear (phase k of N at alpha_k; the archive is re-evaluated at every phase boundary). "
+        "The default preset `quick` finishes in about 2 minutes on 2 CPU cores; `--preset paper` is the "
+        "paper's experiment (1e7 evaluations, 100 phases, 1024 cells; for a GPU). Writes a run directory; "
+        "see docs/runner.md.",
+    )
+    run.add_argument("task", metavar="TASK", help=common.tasks_help())
+    run.add_argument("schedules", nargs=1, metavar="SCHEDULE", help="a .sched path or a bundled name")
+    common.add_run_options(run)
+    run.add_argument(
+        "--seed", type=whole_number, default=None, metavar="S", help="random seed, from 0 to 2**32-1 (default 0)"
+    )
+    run.add_argument("--out", metavar="DIR", help="run directory (default runs/TASK-SCHEDULE-seedS)")
+    run.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    common.add_devices_option(run, "split each generation's population across the first D devices")
+    # a run is one process's whole share, of one schedule and one seed
+    run.set_defaults(handle=Run().train, num_processes=None, process_id=None, cluster=False, runs_per_step=None)
+
+
+def _add_sweep_parser(commands: argparse._SubParsersAction) -> None:
+    sweep = commands.add_parser(
+        "sweep",
+        help="run several schedules x seeds together as one batched program",
+        description="Run every (schedule, seed) pair of a task together: all runs advance generation by "
+        "generation in one compiled program, split across the available devices (GPUs, or one CPU device "
+        "per core), and each gets a run directory in `run`'s format under --out. Then `smol-dsl report DIR`. "
+        "See docs/tutorial.md and docs/scaling.md.",
+    )
+    sweep.add_argument("task", metavar="TASK", help=common.tasks_help())
+    sweep.add_argument("schedules", nargs="+", metavar="SCHEDULE", help="a .sched path or a bundled name")
+    sweep.add_argument("--seeds", type=positive_int, default=5, metavar="N", help="seeds per schedule (default 5)")
+    sweep.add_argument(
+        "--first-seed",
+        type=whole_number,
+        default=0,
+        metavar="S",
+        help="seeds are S..S+N-1, from 0 to 2**32-1 (default 0)",
+    )
+    common.add_run_options(sweep)
+    sweep.add_argument("--out", metavar="DIR", help="sweep directory (default runs/TASK-sweep)")
+    sweep.add_argument("--resume", action="store_true", help="continue the sweep in --out from its last checkpoint")
+    sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    common.add_devices_option(sweep, "use the first D devices")
+    sweep.add_argument(
+        "--runs-per-step",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="runs a device advances at once (default: 1 on CPUs, where small batches are fastest; all on GPUs)",
+    )
+    several = sweep.add_argument_group(
+        "several machines",
+        "share one sweep between processes, e.g. one per machine: each runs every N-th (schedule, seed) pair "
+        "on its own devices and writes into the same --out (a shared file system); see docs/scaling.md",
+    )
+    several.add_argument("--num-processes", type=positive_int, metavar="N", help="how many processes share the sweep")
+    several.add_argument("--process-id", type=whole_number, metavar="I", help="this process's index, 0..N-1")
+    several.add_argument(
+        "--cluster",
+        action="store_true",
+        help="take N and I from the cluster's launcher (Slurm: SLURM_NTASKS, SLURM_PROCID; Open MPI: "
+        "OMPI_COMM_WORLD_SIZE, OMPI_COMM_WORLD_RANK)",
+    )
+    sweep.set_defaults(handle=Sweep().train, seed=None)  # a sweep's shared settings carry no seed
+
+
+@dataclass
+class Plan:
+    """What one `run` or `sweep` command line trains, and where."""
+
+    args: argparse.Namespace
+    schedules: list[Schedule]
+    config: RunConfig
+    seeds: list[int]
+    part: tuple[int, int]  # this process's share: (index, number of processes)
+    out: Path
+
+    @cached_property
+    def devices(self) -> list[Any]:
+        """The devices to use (--devices), looked up when first needed."""
+        return common.devices(self.args)
+
+    @property
+    def runs(self) -> int:
+        """The runs of the whole sweep (every process's)."""
+        return len(self.schedules) * len(self.seeds)
+
+    @property
+    def runs_per_step(self) -> int:
+        """--runs-per-step, or -1: as many as the devices take best (see `run_sweep`)."""
+        return -1 if self.args.runs_per_step is None else self.args.runs_per_step
+
+
+class Training(ABC):
+    """`run` or `sweep`: `train` takes the steps both share; the methods below are what differs."""
+
+    command: str
+
+    def train(self, args: argparse.Namespace) -> int:
+        from smol_dsl.runner import check_config
+        from smol_dsl.runner.directories import busy, check_out_dir, non_empty
+
+        use_cpu_cores_as_devices()
+        common.check_task(args.task)
+        common.check_out(args.out)
+        self.check_seeds(args)
+        schedules, errors = common.load_all(args.schedules)
+        if errors:
+            common.print_errors(errors)
+            return EXIT_USAGE
+        config = _config(args)
+        for schedule in schedules:
+            check_config(config, schedule)
+        part = sweep_part(args)
+        out = Path(args.out) if args.out is not None else self.default_out(args, schedules, config)
+        plan = Plan(args, schedules, config, self.seeds(args, config), part, out)
+        check_out_dir(out)  # before anything compiles: a file, a device or a path under a file
+        if not args.resume and part == (0, 1) and non_empty(out):
+            raise busy(out)
+        print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
+        footprint = _announce_footprint(plan, self.command)
+        if args.dry_run:
+            return EXIT_OK
+        note = self.note(config)
+        if note:
+            print(f"smol-dsl {self.command}: {note}", file=sys.stderr)
+        results = _with_progress(args, config, lambda progress: self.start(plan, footprint, progress))
+        _draw_figures(results)
+        print(self.summary(plan, results))
+        return EXIT_OK
+
+    @abstractmethod
+    def check_seeds(self, args: argparse.Namespace) -> None:
+        """Refuse seeds outside 0 .. 2**32 - 1, naming the option, before anything loads."""
+
+    @abstractmethod
+    def seeds(self, args: argparse.Namespace, config: RunConfig) -> list[int]:
+        """The seeds to train, each with every schedule."""
+
+    @abstractmethod
+    def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
+        """The output directory without --out."""
+
+    @abstractmethod
+    def announcement(self, plan: Plan) -> str:
+        """What will run, printed before anything compiles (the output directory follows)."""
+
+    def note(self, config: RunConfig) -> str | None:
+        """A note printed before training starts, if any."""
+        return None
+
+    @abstractmethod
+    def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
+        """Train (or resume), reporting to `progress`; the results of this process's runs."""
+
+    @abstractmethod
+    def summary(self, plan: Plan, results: list[RunResult]) -> str:
+        """What is printed when training has ended."""
+
+
+class Run(Training):
+    """`smol-dsl run`: one schedule, one seed (--seed, or the preset's), in one run directory."""
+
+    command = "run"
+
+    def check_seeds(self, args: argparse.Namespace) -> None:
+        from smol_dsl.seeds import check_seed
+
+        if args.seed is not None:
+            check_seed(args.seed, "--seed")
+
+    def seeds(self, args: argparse.Namespace, config: RunConfig) -> list[int]:
+        return [config.seed]
+
+    def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
+        from smol_dsl.runner.directories import run_name
+
+        return Path("runs") / run_name(args.task, schedules[0], config.seed)
+
+    def announcement(self, plan: Plan) -> str:
+        config, (schedule,) = plan.config, plan.schedules
+        return (
+            f"{config.task} under {schedule.name} ({plan.args.schedules[0]}), preset {config.preset}: "
+            f"{config.evaluations} evaluations in batches of {config.batch_size}, {config.num_phases} phases, "
+            f"{config.num_centroids} cells, {config.episode_length}-step episodes, seed {config.seed}"
+        )
+
+    def note(self, config: RunConfig) -> str | None:
+        if config.preset != "quick":
+            return None
+        return (
+            "the quick preset is sized for about 2 minutes on 2 CPU cores; "
+            "--preset paper runs the paper's experiment (1e7 evaluations; for a GPU)"
+        )
+
+    def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
+        from smol_dsl.runner import run_experiment
+
+        args = plan.args
+        result = run_experiment(
+            args.task,
+            plan.schedules[0],
+            plan.config,
+            out_dir=plan.out,
+            resume=args.resume,
+            progress=progress,
+            devices=plan.devices,
+        )
+        return [result]
+
+    def summary(self, plan: Plan, results: list[RunResult]) -> str:
+        from smol_dsl.runner.progress import summary_line
+
+        return summary_line(results[0], plan.schedules[0])
+
+
+class Sweep(Training):
+    """`smol-dsl sweep`: every (schedule, seed) pair, --seeds seeds from --first-seed, in one
+    sweep directory (or this process's share of them)."""
+
+    command = "sweep"
+
+    def check_seeds(self, args: argparse.Namespace) -> None:
+        """--first-seed and every seed up to --first-seed + --seeds - 1 must give distinct runs."""
+        from smol_dsl.seeds import SEED_MAX, check_seed
+
+        first, count = args.first_seed, args.seeds
+        check_seed(first, "--first-seed")
+        last = first + count - 1
+        if last > SEED_MAX:
+            raise UsageError(
+                f"--first-seed {first} with --seeds {count}: the seeds would run up to {last}, past the largest "
+                f"seed, {SEED_MAX}; use --first-seed {SEED_MAX - count + 1} or less, or fewer --seeds"
+            )
+
+    def seeds(self, args: argparse.Namespace, config: RunConfig) -> list[int]:
+        return list(range(args.first_seed, args.first_seed + args.seeds))
+
+    def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
+        return Path("runs") / f"{args.task}-sweep"
+
+    def announcement(self, plan: Plan) -> str:
+        config, (index, parts), devices = plan.config, plan.part, plan.devices
+        share = f" (process {index} of {parts}: {len(range(index, plan.runs, parts))} of them)" if parts > 1 else ""
+        return (
+            f"{config.task}, {len(plan.schedules)} schedule(s) x {len(plan.seeds)} seed(s) = {plan.runs} runs{share} "
+            f"on {len(devices)} {devices[0].platform} device(s), preset {config.preset}: {config.evaluations} "
+            f"evaluations per run in batches of {config.batch_size}, {config.num_phases} phases, "
+            f"{config.num_centroids} cells, {config.episode_length}-step episodes"
+        )
+
+    def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
+        from smol_dsl.runner import run_sweep
+
+        args = plan.args
+        return run_sweep(
+            args.task,
+            plan.schedules,
+            plan.seeds,
+            plan.config,
+            out_dir=plan.out,
+            resume=args.resume,
+            progress=progress,
+            devices=plan.devices,
+            runs_per_step=footprint.runs_per_step if plan.runs_per_step == -1 else plan.runs_per_step,
+            part=plan.part,
+        )
+
+    def summary(self, plan: Plan, results: list[RunResult]) -> str:
+        from smol_dsl.runner.progress import sweep_summary
+
+        return sweep_summary(results, plan.out)
+
+
+def _config(args: argparse.Namespace) -> RunConfig:
+    """The preset's settings with the options given (a run's --seed; a sweep's config has none)."""
+    from smol_dsl.runner import PRESETS, preset_config
+
+    if args.preset not in PRESETS:
+        raise UsageError(f"unknown preset {args.preset!r}; the presets are {', '.join(PRESETS)}")
+    return preset_config(
+        args.task,
+        args.preset,
+        seed=args.seed,
+        evaluations=args.evals,
+        num_phases=args.phases,
+        batch_size=args.batch_size,
+        num_centroids=args.centroids,
+        episode_length=args.episode_length,
+    )
+
+
+def _announce_footprint(plan: Plan, command: str) -> Footprint:
+    """Check that the run(s) fit the devices' memory, and print what they will need for the
+    paper preset or anything large; before anything compiles."""
+    from smol_dsl.runner.footprint import fit_sweep
+
+    config = plan.config
+    footprint = fit_sweep(config, len(plan.schedules), plan.seeds, plan.devices, plan.runs_per_step, plan.part)
+    if plan.args.dry_run or config.preset == "paper" or footprint.device_bytes > LARGE_BYTES:
+        print(f"smol-dsl {command}: what this will need, by arithmetic before compiling:", file=sys.stderr)
+        for line in footprint.describe(plan.out).splitlines():
+            print(f"  {line}", file=sys.stderr)
+    return footprint
+
+
+def _with_progress(
+    args: argparse.Namespace, config: RunConfig, start: Callable[[Any], list[RunResult]]
+) -> list[RunResult]:
+    """start(progress callback or None), with a progress bar unless --no-progress."""
+    from smol_dsl.runner.progress import ProgressBar
+
+    bar = None if args.no_progress else ProgressBar(config)
+    try:
+        return start(bar.update if bar else None)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _draw_figures(results: Sequence[RunResult]) -> None:
+    """Each finished run directory's metrics.png and archive.png, after training."""
+    from smol_dsl.results.figures import save_run_figures
+
+    for result in results:
+        if result.out_dir is not None and result.final["generation"] >= result.config.generations:
+            save_run_figures(result.out_dir)
+
+
+def sweep_part(args: argparse.Namespace) -> tuple[int, int]:
+    """This process's share of the sweep: (index, number of processes)."""
+    if args.cluster:
+        if args.num_processes is not None or args.process_id is not None:
+            raise UsageError(
+                "--cluster takes --num-processes and --process-id from the launcher; give one or the other"
+            )
+        for count, index in CLUSTER_VARIABLES:
+            if count in os.environ and index in os.environ:
+                return _checked_part(int(os.environ[index]), int(os.environ[count]))
+        names = " or ".join(f"{count} and {index}" for count, index in CLUSTER_VARIABLES)
+        raise UsageError(
+            f"--cluster: no cluster launcher found ({names} are not set); use --num-processes and --process-id"
+        )
+    if args.num_processes is None and args.process_id is None:
+        return 0, 1
+    if args.num_processes is None or args.process_id is None:
+        raise UsageError("give --num-processes and --process-id together")
+    return _checked_part(args.process_id, args.num_processes)
+
+
+def _checked_part(index: int, count: int) -> tuple[int, int]:
+    if not 0 <= index < count:
+        raise UsageError(f"process {index} of {count}: the index must be from 0 to {count - 1}")
+    return index, count
+
+
+def use_cpu_cores_as_devices() -> None:
+    """Before JAX starts: split a CPU into one XLA device per core (unless XLA_FLAGS
+    already says how many), so that a run's population and a sweep's runs use every core. It changes nothing
+    on GPUs, whose devices JAX prefers."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
