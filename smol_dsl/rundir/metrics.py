@@ -216,6 +216,13 @@ def metrics_schema(channels: Sequence[Channel] = ()) -> MetricsSchema:
     return MetricsSchema(METRICS_SCHEMA.columns[:at] + extra + METRICS_SCHEMA.columns[at:])
 
 
+def scheduled_columns(channels: Sequence[Channel]) -> tuple[str, ...]:
+    """The columns of a run's scheduled channels, in metrics.csv's order: `alpha` first if
+    plain gear is among `channels`, then the others' in the order given."""
+    names = {column_name(channel) for channel in channels}
+    return tuple(name for name in metrics_schema(channels).names if name in names)
+
+
 def body_columns(channels: Sequence[Channel], body: Sequence[float]) -> dict[str, float]:
     """A body's columns of a metrics row: `alpha` (1 unless plain gear is among `channels`)
     and each other channel's factor, for the (C,) `body` of `channels`."""
@@ -270,8 +277,9 @@ class MetricsLog:
             raise OSError(error.errno, error.strerror or str(error), str(self.path)) from error
 
 
-def alpha_one_evaluations(rows: Sequence[Mapping[str, Any]], first_tail_phase: int) -> float | None:
-    """Training evaluations at the start of the first phase of the alpha = 1 tail."""
+def final_body_evaluations(rows: Sequence[Mapping[str, Any]], first_tail_phase: int) -> float | None:
+    """Training evaluations at the start of the first phase of the tail, where the body is
+    the final one for good (None: the rows end before it)."""
     for row in rows:
         if row["phase"] >= first_tail_phase:
             return float(row["evaluations"])
