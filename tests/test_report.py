@@ -1,76 +1,37 @@
-"""`smol-dsl report`: the U-test table against tests computed by hand, layout, refusals."""
+"""`smol-dsl report`: the U-test table against tests computed by hand, layout, and refusals:
+runs that cannot be compared, an output that would overwrite something, odd options, each
+one message naming the file, exit status 2, no traceback, nothing written or overwritten;
+names that tables and figures must escape; and reporting without loading JAX.
+
+The run directories are synthetic (synthetic_runs.write_run, no training).
+"""
 
 from __future__ import annotations
 
 import csv
+import errno
 import itertools
 import json
 import math
+import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from synthetic_runs import SEEDS, loaded_modules, many_schedules, refused, snapshot, write_run, write_runs
 
+import smol_dsl
 from smol_dsl.cli import main
-from smol_dsl.results.report import ReportError, load_runs, pvalue_table, write_report
-from smol_dsl.rundir import ARCHIVE_FILE, METRICS_FILE, MetricsLog, write_archive
-from smol_dsl.runner import preset_config
-from smol_dsl.tasks import task_spec
-
-SETTINGS = dict(evaluations=16 * 13, batch_size=16, num_phases=10, num_centroids=32, episode_length=20)
+from smol_dsl.results import report as report_module
+from smol_dsl.results.report import REPORT_FILES, ReportError, load_runs, pvalue_table, write_report
+from smol_dsl.rundir import MetricsLog, read_metrics
 
 
-def write_run(
-    directory: Path,
-    library: dict,
-    schedule: str,
-    seed: int,
-    final: dict[str, float],
-    *,
-    task: str = "walker2d",
-    finished: bool = True,
-    **overrides: object,
-) -> Path:
-    """A run directory in the runner's format (written by smol_dsl.rundir's writers) whose
-    last row has the given final scores."""
-    config = preset_config(task, "quick", seed=seed, **{**SETTINGS, **overrides})
-    sched = library[schedule]
-    directory.mkdir(parents=True)
-    (directory / "config.json").write_text(config.to_json())
-    (directory / "schedule.sched").write_text(sched.source)
-    (directory / "certificate.json").write_text(json.dumps({"name": sched.name, "tail_start": float(sched.tail_start)}))
-    last = config.generations if finished else config.generations // 2
-    rng = np.random.default_rng(seed)
-    rows = []
-    for generation in range(last + 1):
-        row = {
-            "generation": generation,
-            "phase": config.phase_of_generation(generation) if generation else 0,
-            "alpha": 1.0,
-            "event": "train" if generation else "init",
-            "evaluations": (generation + 1) * config.batch_size,
-            "reevaluations": 0,
-            "coverage": rng.uniform(0, 50),
-            "max_fitness": rng.uniform(0, 100),
-            "qd_score": rng.uniform(0, 1000),
-            "non_finite": 0,
-        }
-        if generation == last:
-            row.update(final)
-        rows.append(row)
-    MetricsLog(directory / METRICS_FILE, rows)
-    cells = config.num_centroids
-    fitnesses = np.where(rng.uniform(size=cells) < 0.3, rng.uniform(0, 100, cells), -np.inf)
-    write_archive(
-        directory / ARCHIVE_FILE,
-        {
-            "genotypes/params/Dense_0/kernel": np.zeros((cells, 2, 2)),
-            "fitnesses": fitnesses,
-            "descriptors": rng.uniform(size=(cells, task_spec(task).descriptor_size)),
-            "centroids": rng.uniform(size=(cells, task_spec(task).descriptor_size)),
-        },
-    )
-    return directory
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory, library) -> Path:
+    """Six finished runs (synthetic_runs.write_runs), not to be changed: tests copy them."""
+    return write_runs(tmp_path_factory.mktemp("pristine"), library)
 
 
 def exact_one_sided_p(x: list[float], y: list[float]) -> float:
@@ -249,6 +210,62 @@ def test_refuses_runs_that_cannot_be_compared(tmp_path, library, second, message
         load_runs([tmp_path])
 
 
+def test_refuses_two_schedules_with_one_name(tmp_path, library):
+    schedules = {}
+    for key, factor in (("a", "1.2"), ("b", "1.3")):
+        path = tmp_path / f"{key}.sched"
+        path.write_text(f'name "Same"\n0% .. 90%: constant {factor}\n90% .. 100%: tail\n')
+        schedules[key] = smol_dsl.load(path)
+    first = write_run(tmp_path / "runs" / "a", schedules, "a", 0, {"max_fitness": 1.0})
+    second = write_run(tmp_path / "runs" / "b", schedules, "b", 1, {"max_fitness": 2.0})
+    with pytest.raises(ReportError) as caught:
+        load_runs([tmp_path / "runs"])
+    assert str(caught.value) == (
+        f"two different schedules are both named 'Same' ({first} and {second}); give them different `name`s"
+    )
+
+
+def test_refuses_runs_of_the_same_settings_that_log_different_steps(tmp_path, library):
+    write_run(tmp_path / "a", library, "smol", 0, {"max_fitness": 1.0})
+    edited = write_run(tmp_path / "b", library, "vanilla", 0, {"max_fitness": 1.0})
+    rows = read_metrics(edited / "metrics.csv")
+    boundary = next(i for i in range(len(rows) - 1) if rows[i + 1]["phase"] > rows[i]["phase"])
+    rows.insert(boundary + 1, {**rows[boundary], "event": "reevaluate", "phase": rows[boundary + 1]["phase"]})
+    MetricsLog(edited / "metrics.csv", rows)  # a valid file, with a re-evaluation the other run lacks
+    with pytest.raises(ReportError) as caught:
+        load_runs([tmp_path])
+    assert str(caught.value).startswith(
+        f"{edited / 'metrics.csv'} (14 rows) and {tmp_path / 'a' / 'metrics.csv'} (13 rows) log different "
+        "generations and phases although their runs have the same settings; one of them was cut or edited"
+    )
+
+
+def test_refuses_schedules_that_end_on_different_bodies(tmp_path, library):
+    plain = write_run(tmp_path / "a", library, "smol", 0, {"max_fitness": 1.0})
+    damaged = write_run(tmp_path / "b", library, "leg-damage", 0, {"max_fitness": 1.0}, channels=True)
+    with pytest.raises(ReportError) as caught:
+        load_runs([tmp_path])
+    assert str(caught.value).startswith(
+        f"Leg damage and SMOL end on different bodies: channel gear[left_leg] ends at 0.5 in Leg damage ({damaged}) "
+        f"and at 1 in SMOL ({plain}); final scores are only comparable on the same final body"
+    )
+    write_run(tmp_path / "c", library, "growth", 0, {"max_fitness": 1.0}, channels=True)  # ends on the standard body
+    assert list(load_runs([tmp_path / "a", tmp_path / "c"])) == ["SMOL", "Growth"]
+
+
+def test_many_unusable_run_directories_are_listed_up_to_five(tmp_path, library):
+    for seed in range(7):
+        run = write_run(tmp_path / f"run{seed}", library, "smol", seed, {"max_fitness": 1.0})
+        (run / "schedule.sched").unlink()
+    with pytest.raises(ReportError) as caught:
+        load_runs([tmp_path])
+    lines = str(caught.value).splitlines()
+    assert lines[0] == "7 of the 7 run directories cannot be used:"
+    for seed in range(5):
+        assert lines[1 + seed].startswith(f"  {tmp_path / f'run{seed}' / 'schedule.sched'}: missing"), lines
+    assert lines[6:] == ["  and 2 more"]
+
+
 def test_a_directory_given_twice_counts_once(synthetic):
     groups = load_runs([synthetic, synthetic / "walker2d-smol-seed0"])
     assert sum(len(runs) for runs in groups.values()) == 16
@@ -267,3 +284,172 @@ def test_tied_best_medians_are_all_bold(tmp_path, library):
     assert table.best == {"SMOL", "Vanilla MAP-Elites"}
     assert table.markdown().count("**6.2**") == 2
     assert table.pvalues["Vanilla MAP-Elites"]["SMOL"] == pytest.approx(1.0)  # identical scores: no evidence
+
+
+# ---------------------------------------------------------------------------- seeds
+def test_the_same_schedule_and_seed_twice_is_refused(pristine, tmp_path, capsys):
+    again = tmp_path / "again"
+    shutil.copytree(pristine / "walker2d-smol-seed1", again / "copy-of-seed1")
+    err = refused(
+        ["report", str(pristine), str(again), "-o", str(tmp_path / "out")],
+        capsys,
+        pristine / "walker2d-smol-seed1",
+        again / "copy-of-seed1",
+    )
+    assert "seed 1 is there twice" in err
+
+
+def test_seeds_that_jax_takes_as_equal_are_refused(pristine, tmp_path, capsys):
+    alias = Path(shutil.copytree(pristine / "walker2d-smol-seed1", tmp_path / "alias" / "seed-4294967297"))
+    config = json.loads((alias / "config.json").read_text())
+    (alias / "config.json").write_text(json.dumps({**config, "seed": 1 + 2**32}))  # the same stream as seed 1
+    err = refused(["report", str(pristine), str(tmp_path / "alias"), "-o", str(tmp_path / "out")], capsys, alias)
+    assert "4294967297" in err
+    assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------------------- the output
+def test_an_earlier_report_is_kept_unless_forced(pristine, tmp_path, capsys, library):
+    out = tmp_path / "report"
+    with_ablation = Path(shutil.copytree(pristine, tmp_path / "runs"))
+    for seed in SEEDS:
+        write_run(with_ablation / f"random-{seed}", library, "random", seed, {"max_fitness": 1.0})
+    assert main(["report", str(with_ablation), "-o", str(out)]) == 0
+    capsys.readouterr()
+    before = snapshot(out)
+    assert "ablation-results.png" in before
+
+    err = refused(["report", str(pristine), "-o", str(out)], capsys, out, "--force", "-o", "table.md")
+    assert snapshot(out) == before  # untouched
+    with pytest.raises(ReportError, match="already holds a report"):
+        write_report([pristine], out)
+
+    assert main(["report", str(pristine), "-o", str(out), "--force"]) == 0
+    after = snapshot(out)
+    assert after["table.md"] != before["table.md"]
+    assert "ablation-results.png" not in after  # the earlier report's figure that this one does not draw
+    assert not [name for name in after if name.endswith(".tmp")]
+    del err
+
+
+def test_output_that_is_a_file_is_refused(pristine, tmp_path, capsys):
+    target = tmp_path / "results.md"
+    target.write_text("my notes")
+    refused(["report", str(pristine), "-o", str(target)], capsys, target, "not a directory")
+    assert target.read_text() == "my notes"
+    refused(["report", str(pristine), "-o", str(target / "report")], capsys, target, "is a file")
+    assert target.read_text() == "my notes"
+
+
+def test_output_in_a_new_directory_is_made(pristine, tmp_path, capsys):
+    out = tmp_path / "not" / "yet" / "there"
+    assert main(["report", str(pristine), "-o", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [
+            "table.md",
+            "pvalues.tex",
+            "scores.csv",
+            "main-results.png",
+            "main-results.pdf",
+            "archives.png",
+            "archives.pdf",
+        ]
+    )
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_a_report_file_name_taken_by_a_directory_is_refused(pristine, tmp_path, capsys):
+    out = tmp_path / "out"
+    (out / "scores.csv").mkdir(parents=True)
+    refused(["report", str(pristine), "-o", str(out), "--force"], capsys, out / "scores.csv", "is a directory")
+    assert [p.name for p in out.iterdir()] == ["scores.csv"]
+
+
+def test_a_full_disk_leaves_the_earlier_report_whole(pristine, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    assert main(["report", str(pristine), "-o", str(out)]) == 0
+    capsys.readouterr()
+    before = snapshot(out)
+    written = []
+
+    def full_disk(path: Path, data: bytes) -> None:
+        if len(written) == 3:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        written.append(path)
+        path.write_bytes(data)
+
+    monkeypatch.setattr(report_module, "_write_bytes", full_disk)
+    refused(["report", str(pristine), "-o", str(out), "--force"], capsys, "No space left on device", out)
+    assert snapshot(out) == before  # nothing renamed into place, every temporary file removed
+    assert len(written) == 3
+
+
+def test_no_runs_missing_and_odd_directories(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    refused(["report", str(tmp_path / "empty")], capsys, tmp_path / "empty", "no run directories")
+    assert not (tmp_path / "empty" / "report").exists()
+    refused(["report", str(tmp_path / "missing")], capsys, tmp_path / "missing", "no such directory")
+    (tmp_path / "file.txt").write_text("x")
+    refused(["report", str(tmp_path / "file.txt")], capsys, tmp_path / "file.txt", "not a directory")
+
+
+def test_report_option_mistakes(pristine, tmp_path, capsys):
+    refused(["report", str(pristine), str(pristine), "--metric", "coverage"], capsys, "-o OUT")
+    refused(["report", str(pristine), "-o", str(tmp_path / "o"), "--metric", "speed"], capsys, "unknown metric")
+    refused(["report", str(pristine), str(pristine), "-o", ""], capsys, "-o: empty path")
+    assert not (tmp_path / "o").exists()
+
+
+# ---------------------------------------------------------------------------- many schedules, odd names
+def test_report_of_many_schedules_without_warnings(tmp_path, capsys):
+    schedules = {f"s{k}": smol_dsl.load(p) for k, p in enumerate(many_schedules(tmp_path, 12), start=1)}
+    for name in schedules:
+        write_run(tmp_path / "runs" / name, schedules, name, 0, {"max_fitness": float(len(name))})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err
+    assert all(line.startswith("note: ") for line in err.splitlines()), err
+    assert set(REPORT_FILES) - {"ablation-results.png", "ablation-results.pdf"} == {
+        p.name for p in (tmp_path / "out").iterdir()
+    }
+
+
+def test_names_with_table_and_latex_characters(tmp_path, capsys):
+    schedules = {}
+    for key, name in (("pipe", "a|b"), ("tex", "x\\y^2~_{z}")):
+        path = tmp_path / f"{key}.sched"
+        path.write_text(f'name "{name}"\n0% .. 90%: constant 1.2\n90% .. 100%: tail\n')
+        schedules[key] = smol_dsl.load(path)
+    for key in schedules:
+        for seed in (0, 1):
+            write_run(tmp_path / "runs" / f"{key}-{seed}", schedules, key, seed, {"max_fitness": float(seed)})
+    assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out")]) == 0
+    markdown = (tmp_path / "out" / "table.md").read_text().splitlines()
+    rows = [line for line in markdown if line.startswith("| ") and "---" not in line]
+    assert all(line.count(" | ") == rows[0].count(" | ") for line in rows)  # one cell per column
+    assert any(line.startswith("| a\\|b |") for line in rows)
+    latex = (tmp_path / "out" / "pvalues.tex").read_text()
+    assert "x\\textbackslash{}y\\textasciicircum{}2\\textasciitilde{}\\_\\{z\\}" in latex
+
+
+# ---------------------------------------------------------------------------- import weight
+HEAVY = ("jax", "brax", "qdax", "flax")
+"""What reporting on runs must not load: training's libraries."""
+
+
+def test_the_report_module_imports_no_jax():
+    assert loaded_modules("import smol_dsl.results.report", HEAVY) == []
+    assert loaded_modules("import smol_dsl.results.report, smol_dsl.rundir, smol_dsl.results.figures", HEAVY) == []
+
+
+def test_cli_report_imports_no_jax(tmp_path, library):
+    for schedule in ("smol", "vanilla"):
+        for seed in (0, 1):
+            write_run(tmp_path / "runs" / f"{schedule}-{seed}", library, schedule, seed, {"max_fitness": seed})
+    code = (
+        "from smol_dsl.cli import main\n"
+        f"assert main(['report', {str(tmp_path / 'runs')!r}, '-o', {str(tmp_path / 'out')!r}]) == 0"
+    )
+    assert loaded_modules(code, HEAVY) == []
+    assert (tmp_path / "out" / "table.md").is_file()

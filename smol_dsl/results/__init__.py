@@ -1,3 +1,58 @@
-"""Finished runs: the run directory's format (`rundir`), the paper's statistics and report
-(`report`) and every figure (`figures`). Nothing here imports JAX, Brax, QDax or Flax at
-import time, so reading and reporting on runs does not load them."""
+"""Finished runs, read from their run directories (`smol_dsl.rundir`): the paper's statistics
+and report, and every figure.
+
+- `report`: `load_runs(paths)` finds and checks run directories and groups comparable runs
+  by schedule; `pvalue_table(groups)` is the paper's table of one-sided Mann-Whitney U
+  tests; `write_report(paths, out_dir)` writes it with the figures (`smol-dsl report`).
+- `figures`: `save_run_figures(directory)` draws a finished run directory's metrics.png and
+  archive.png from its files, and is what the CLI calls after `run` and `sweep` have
+  trained; `schedule_figure(schedules)` is the paper's Figure 2 (`smol-dsl plot`);
+  `results_figure` and `archives_figure` are the report's.
+
+The names below load their module on first use, so `import smol_dsl.results` loads nothing
+else; `smol_dsl.results.report` imports no JAX, Brax or QDax, so reporting on runs does not
+load them, and `figures` imports JAX only to evaluate schedules (`schedule_figure`).
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from smol_dsl.results.figures import archives_figure, results_figure, save_run_figures, schedule_figure
+    from smol_dsl.results.report import ReportError, load_runs, pvalue_table, write_report
+
+_LAZY = {
+    "ReportError": "smol_dsl.results.report",
+    "load_runs": "smol_dsl.results.report",
+    "pvalue_table": "smol_dsl.results.report",
+    "write_report": "smol_dsl.results.report",
+    "archives_figure": "smol_dsl.results.figures",
+    "results_figure": "smol_dsl.results.figures",
+    "save_run_figures": "smol_dsl.results.figures",
+    "schedule_figure": "smol_dsl.results.figures",
+}
+
+__all__ = [
+    "ReportError",
+    "archives_figure",
+    "load_runs",
+    "pvalue_table",
+    "results_figure",
+    "save_run_figures",
+    "schedule_figure",
+    "write_report",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

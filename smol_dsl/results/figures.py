@@ -32,8 +32,8 @@ from smol_dsl.rundir import (
     METRICS_SCHEMA,
     SCORES,
     RunDirectoryError,
-    column_name,
     read_run,
+    scheduled_columns,
 )
 from smol_dsl.tasks import descriptor_bounds
 
@@ -122,7 +122,7 @@ def schedule_figure(
     for axes, channel in zip(panels, channels, strict=True):
         _draw_channel(axes, schedules, channel, styles, num_phases=num_phases, key=key, smooth_points=smooth_points)
     panels[-1].set_xlabel("training progress (%)")
-    if len(channels) == 1 and channels[0].quantity == "alpha":
+    if channels == [GEAR]:
         panels[0].set_title(f"Torque scaling schedules ({num_phases} phases)")
     else:
         figure.suptitle(f"Developmental schedules ({num_phases} phases)")
@@ -152,7 +152,7 @@ def _draw_channel(
         axes.step(phase_starts, np.append(steps, steps[-1]), where="post", lw=2.0, label=label, **style)
         smooth = np.asarray(curve.value(jnp.asarray(smooth_t), key))
         axes.plot(smooth_t * 100, smooth, color=style["color"], ls=style["ls"], lw=1.0, alpha=0.45)
-    gear = channel.quantity == "alpha"
+    gear = channel == GEAR
     symbol = "α" if gear else channel.name
     tails = {
         (float(curve.tail_start), curve.final)
@@ -200,20 +200,18 @@ def metrics_figure(run: RunRecord, title: str) -> Figure:
     figure = Figure(figsize=(11, 3.4), layout="constrained")
     axes = figure.subplots(1, len(SCORES) + 1)
     evaluations = np.asarray([r["evaluations"] for r in rows], dtype=float)
-    final_from = run.alpha_one_evaluations()  # evaluations when the body is final
-    others = [column_name(channel) for channel in run.channels if channel != GEAR]
-    body = ([ALPHA] if GEAR in run.channels or not others else []) + others
-    for ax, name in zip(axes, (*SCORES, "body"), strict=True):
-        if name == "body":
-            for column in body:
-                values = np.asarray([r[column] for r in rows], dtype=float)
-                ax.plot(evaluations, values, lw=1.4, drawstyle="steps-post", label=column)
-            ax.set_ylabel(METRICS_SCHEMA[ALPHA].axis_label if body == [ALPHA] else "factor")
-            if len(body) > 1:
-                ax.legend(fontsize=7)
-        else:
-            ax.plot(evaluations, np.asarray([r[name] for r in rows], dtype=float), lw=1.4)
-            ax.set_ylabel(METRICS_SCHEMA[name].axis_label)
+    for ax, name in zip(axes[: len(SCORES)], SCORES, strict=True):
+        ax.plot(evaluations, np.asarray([r[name] for r in rows], dtype=float), lw=1.4)
+        ax.set_ylabel(METRICS_SCHEMA[name].axis_label)
+    body = scheduled_columns(run.channels)  # one line per scheduled channel's column
+    for column in body:
+        values = np.asarray([r[column] for r in rows], dtype=float)
+        axes[-1].plot(evaluations, values, lw=1.4, drawstyle="steps-post", label=column)
+    axes[-1].set_ylabel(METRICS_SCHEMA[ALPHA].axis_label if body == (ALPHA,) else "factor")
+    if len(body) > 1:
+        axes[-1].legend(fontsize=7)
+    final_from = run.final_body_evaluations()
+    for ax in axes:
         if final_from is not None and 0 < final_from:
             ax.axvline(final_from, color="0.3", ls="--", lw=1.0)
         ax.set_xlabel("evaluations")
@@ -414,7 +412,7 @@ def results_figure(groups: Mapping[str, Sequence[RunRecord]], names: Sequence[st
     """Median (line) and interquartile range (band) over seeds of max fitness, coverage
     and QD score against training evaluations, one colour per schedule (and, past 20, dash
     patterns; past 10 schedules the legend goes below the plots); a dashed line from where
-    alpha is 1 for every schedule shown."""
+    every schedule shown has its final body for good (alpha = 1, for plain gear)."""
     figure = Figure(figsize=(13, 3.8), layout="constrained")
     axes = figure.subplots(1, len(SCORES))
     if len(names) <= LEGEND_INSIDE:  # the paper's colours for the paper's schedules
@@ -425,8 +423,8 @@ def results_figure(groups: Mapping[str, Sequence[RunRecord]], names: Sequence[st
         ]
     else:
         styles = series_styles(len(names))
-    # where alpha is 1 for every schedule shown (the paper's fair-comparison line)
-    alpha_one = max((x for name in names if (x := groups[name][0].alpha_one_evaluations()) is not None), default=None)
+    # where every schedule shown has its final body for good (the paper's fair-comparison line)
+    final_from = max((x for name in names if (x := groups[name][0].final_body_evaluations()) is not None), default=None)
     for ax, metric in zip(axes, SCORES, strict=True):
         for name, style in zip(names, styles, strict=True):
             runs = groups[name]
@@ -438,8 +436,8 @@ def results_figure(groups: Mapping[str, Sequence[RunRecord]], names: Sequence[st
                 low, median, high = np.nanpercentile(values, [25, 50, 75], axis=0)
             ax.plot(evaluations, median, lw=1.5, label=legend_label(f"{name} ({len(runs)})"), **style)
             ax.fill_between(evaluations, low, high, color=style["color"], alpha=0.2, lw=0)
-        if alpha_one is not None:
-            ax.axvline(alpha_one, color="0.3", ls="--", lw=1.0)
+        if final_from is not None:
+            ax.axvline(final_from, color="0.3", ls="--", lw=1.0)
         ax.set_xlabel("evaluations")
         ax.set_ylabel(METRICS_SCHEMA[metric].axis_label)
         ax.grid(alpha=0.25)

@@ -101,18 +101,36 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
             f"no run directories in {', '.join(str(p) for p in paths)} (a run directory holds config.json "
             "and metrics.csv); make some with `smol-dsl sweep` or `smol-dsl run`"
         )
+    runs = _read_runs(directories)
+    _check_one_task(runs)
+    _check_finished(runs)
+    _check_same_settings(runs)
+    groups = _group_by_schedule(runs)
+    _check_final_bodies(groups)
+    ordered = sorted(groups, key=lambda name: (ORDER.index(name) if name in ORDER else len(ORDER), name))
+    return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
+
+
+def _read_runs(directories: Sequence[Path]) -> list[RunRecord]:
+    """Every run directory read and checked (`read_run`); a ReportError lists those that
+    cannot be used (up to MOST_PROBLEMS of them), or is the one's own message."""
     runs, problems = [], []
     for directory in directories:
         try:
             runs.append(read_run(directory))
         except RunDirectoryError as error:
             problems.append(str(error))
+    if len(problems) == 1:
+        raise ReportError(problems[0])
     if problems:
-        if len(problems) == 1:
-            raise ReportError(problems[0])
         shown = "\n  ".join(problems[:MOST_PROBLEMS])
         more = f"\n  and {len(problems) - MOST_PROBLEMS} more" if len(problems) > MOST_PROBLEMS else ""
         raise ReportError(f"{len(problems)} of the {len(directories)} run directories cannot be used:\n  {shown}{more}")
+    return runs
+
+
+def _check_one_task(runs: Sequence[RunRecord]) -> None:
+    """Refuse runs of several tasks: their scores cannot share a table."""
     tasks = sorted({run.task for run in runs})
     if len(tasks) > 1:
         examples = "; ".join(f"{task}: {next(r.directory for r in runs if r.task == task)}" for task in tasks)
@@ -120,6 +138,10 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
             f"the runs are of different tasks ({', '.join(tasks)}), which cannot share a table ({examples}); "
             "report each task's directories separately"
         )
+
+
+def _check_finished(runs: Sequence[RunRecord]) -> None:
+    """Refuse runs that have not reached their last generation: they have no final scores."""
     unfinished = [run for run in runs if not run.finished]
     if unfinished:
         raise ReportError(
@@ -127,6 +149,11 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
             f"{unfinished[0].final['generation']} of {unfinished[0].config.generations}); finish them with "
             "`smol-dsl sweep ... --resume` or `smol-dsl run ... --resume`, or leave them out"
         )
+
+
+def _check_same_settings(runs: Sequence[RunRecord]) -> None:
+    """Refuse runs whose settings (the seed aside) differ from the first run's, or whose
+    metrics.csv logs other generations and phases than the first run's, on the same settings."""
     reference = runs[0]
     steps = _steps(reference)
     for run in runs[1:]:
@@ -138,34 +165,49 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
             )
         if _steps(run) != steps:
             raise ReportError(
-                f"{run.directory / 'metrics.csv'} ({len(run.rows)} rows) and {reference.directory / 'metrics.csv'} "
+                f"{run.directory / METRICS_FILE} ({len(run.rows)} rows) and {reference.directory / METRICS_FILE} "
                 f"({len(reference.rows)} rows) log different generations and phases although their runs have the "
                 "same settings; one of them was cut or edited: rerun it, or move it out of the directories you "
                 "report on"
             )
+
+
+def _group_by_schedule(runs: Sequence[RunRecord]) -> dict[str, list[RunRecord]]:
+    """The runs by schedule name, in the order given; refuses (ReportError) two schedules
+    with one name and a run whose schedule and seed another run has already."""
     groups: dict[str, list[RunRecord]] = {}
     for run in runs:
         group = groups.setdefault(run.schedule, [])
-        if group and group[0].schedule_source != run.schedule_source:
-            raise ReportError(
-                f"two different schedules are both named {run.schedule!r} ({group[0].directory} and "
-                f"{run.directory}); give them different `name`s"
-            )
-        twin = next((other for other in group if other.seed % SEED_MODULUS == run.seed % SEED_MODULUS), None)
-        if twin is not None:
-            same = (
-                f"seed {run.seed} is there twice"
-                if twin.seed == run.seed
-                else f"seeds {twin.seed} and {run.seed} are the same run (JAX takes seeds modulo 2**32)"
-            )
-            raise ReportError(
-                f"{run.schedule} {same} ({twin.directory} and {run.directory}); each run must count once: "
-                "leave one of them out"
-            )
+        if group:
+            _check_same_schedule(group[0], run)
+            _check_new_seed(group, run)
         group.append(run)
-    _check_final_bodies(groups)
-    ordered = sorted(groups, key=lambda name: (ORDER.index(name) if name in ORDER else len(ORDER), name))
-    return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
+    return groups
+
+
+def _check_same_schedule(first: RunRecord, run: RunRecord) -> None:
+    """Refuse a run whose schedule has the name of another schedule's runs."""
+    if first.schedule_source != run.schedule_source:
+        raise ReportError(
+            f"two different schedules are both named {run.schedule!r} ({first.directory} and "
+            f"{run.directory}); give them different `name`s"
+        )
+
+
+def _check_new_seed(group: Sequence[RunRecord], run: RunRecord) -> None:
+    """Refuse a run of a seed its schedule's runs have already, or one that JAX takes as the
+    same (S and S + 2**32): each run must count once."""
+    twin = next((other for other in group if other.seed % SEED_MODULUS == run.seed % SEED_MODULUS), None)
+    if twin is not None:
+        same = (
+            f"seed {run.seed} is there twice"
+            if twin.seed == run.seed
+            else f"seeds {twin.seed} and {run.seed} are the same run (JAX takes seeds modulo 2**32)"
+        )
+        raise ReportError(
+            f"{run.schedule} {same} ({twin.directory} and {run.directory}); each run must count once: "
+            "leave one of them out"
+        )
 
 
 def _check_final_bodies(groups: dict[str, list[RunRecord]]) -> None:

@@ -10,8 +10,8 @@ Modules, one concept each:
 - `files`: atomic writes (`atomic_write`, `write_text`, `write_npz`) and `read_text`;
 - `config`: `RunConfig`, config.json, and its checked reader `read_config`;
 - `metrics`: metrics.csv's columns (`METRICS_SCHEMA`, one `Column` per column; a run's body
-  is one column per channel, `body_columns`), `MetricsLog` and the checked reader
-  `read_metrics`;
+  is one column per channel: `column_name`, `metrics_schema(channels)`, `scheduled_columns`,
+  and a row's values `body_columns`), `MetricsLog` and the checked reader `read_metrics`;
 - `certificate`: certificate.json and .txt;
 - `archive`: archive.npz (`write_archive`, `load_archive`, `read_final_archive`);
 - `record`: a run directory as a whole (`write_run_files`; `read_run` -> `RunRecord`).
@@ -73,14 +73,15 @@ from smol_dsl.rundir.metrics import (
     Column,
     MetricsLog,
     MetricsSchema,
-    alpha_one_evaluations,
     body_columns,
     channel_column,
     column_name,
+    final_body_evaluations,
     first_tail_phase,
     metrics_row,
     metrics_schema,
     read_metrics,
+    scheduled_columns,
     schema_of_header,
 )
 from smol_dsl.rundir.record import RunRecord, read_run, write_run_files
@@ -117,7 +118,6 @@ __all__ = [
     "RunConfig",
     "RunDirectoryError",
     "RunRecord",
-    "alpha_one_evaluations",
     "atomic_write",
     "body_columns",
     "certificate_record",
@@ -125,6 +125,7 @@ __all__ = [
     "channel_column",
     "column_name",
     "files_markdown",
+    "final_body_evaluations",
     "first_tail_phase",
     "is_run_directory",
     "load_archive",
@@ -136,6 +137,7 @@ __all__ = [
     "read_metrics",
     "read_run",
     "read_text",
+    "scheduled_columns",
     "schema_of_header",
     "write_archive",
     "write_npz",

@@ -104,44 +104,46 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
             f"its final archive; resume it with `smol-dsl run ... --resume` (or `sweep ... --resume`), which "
             f"writes it, {leave_out(directory)}"
         )
-    cells = config.num_centroids
-    size = task_spec(config.task).descriptor_size
-    expected = {"fitnesses": (cells,), "descriptors": (cells, size), "centroids": (cells, size), "filled": (cells,)}
-
-    def check(name: str, shape: tuple[int, ...], dtype: np.dtype) -> None:
-        if name.startswith(GENOTYPES):
-            if shape[:1] != (cells,):
-                raise RunDirectoryError(
-                    f"{path}: {name} has shape {shape}, not one policy per cell ({cells}, ...); {again}"
-                )
-            return
-        kind = np.bool_ if name == "filled" else np.floating
-        if shape != expected[name] or not np.issubdtype(dtype, kind):
-            raise RunDirectoryError(
-                f"{path}: {name} is a {dtype} array of shape {shape}, but {CONFIG_FILE} ({cells} cells, "
-                f"{config.task}'s {size} descriptors) gives {'bool' if name == 'filled' else 'float'} of shape "
-                f"{expected[name]}; {again}"
-            )
-
-    with _reading_archive(path, again):
-        with zipfile.ZipFile(path) as bundle:
-            headers = {
-                name.removesuffix(".npy"): _npy_header(bundle, name)
-                for name in bundle.namelist()
-                if name.endswith(".npy")
-            }
-    lacking = [name for name in ARCHIVE_ARRAYS if name not in headers]
-    lacking += [] if any(name.startswith(GENOTYPES) for name in headers) else ["genotypes/..."]
+    headers = _read_headers(path, again)
+    policies = [name for name in headers if name.startswith(GENOTYPES)]
+    lacking = [name for name in ARCHIVE_ARRAYS if name not in headers] + ([] if policies else ["genotypes/..."])
     if lacking:
         raise RunDirectoryError(f"{path}: lacks the array(s) {', '.join(lacking)}; {again}")
-    policies = [name for name in headers if name.startswith(GENOTYPES)]
     for name in [*ARCHIVE_ARRAYS, *policies]:  # before reading anything: a damaged header may claim any size
         if headers[name] is not None:
-            check(name, *headers[name])
+            _check_array(path, config, name, *headers[name], again)
     with _reading_archive(path, again), np.load(path, allow_pickle=False) as data:
         arrays = {name: np.asarray(data[name]) for name in ARCHIVE_ARRAYS}
     for name, array in arrays.items():
-        check(name, array.shape, array.dtype)
+        _check_array(path, config, name, array.shape, array.dtype, again)
+    _check_values(path, arrays, again)
+    return FinalArchive(**arrays)
+
+
+def _check_array(path: Path, config: RunConfig, name: str, shape: tuple[int, ...], dtype: np.dtype, again: str) -> None:
+    """An array of archive.npz has the shape and kind the run's config gives: a policy's
+    parameters one per cell, `filled` bool (C,), the others float, (C,) or (C, D)."""
+    cells = config.num_centroids
+    if name.startswith(GENOTYPES):
+        if shape[:1] != (cells,):
+            raise RunDirectoryError(
+                f"{path}: {name} has shape {shape}, not one policy per cell ({cells}, ...); {again}"
+            )
+        return
+    size = task_spec(config.task).descriptor_size
+    expected = {"fitnesses": (cells,), "descriptors": (cells, size), "centroids": (cells, size), "filled": (cells,)}
+    kind = np.bool_ if name == "filled" else np.floating
+    if shape != expected[name] or not np.issubdtype(dtype, kind):
+        raise RunDirectoryError(
+            f"{path}: {name} is a {dtype} array of shape {shape}, but {CONFIG_FILE} ({cells} cells, "
+            f"{config.task}'s {size} descriptors) gives {'bool' if name == 'filled' else 'float'} of shape "
+            f"{expected[name]}; {again}"
+        )
+
+
+def _check_values(path: Path, arrays: Mapping[str, np.ndarray], again: str) -> None:
+    """The archive's values agree: fitnesses finite or -inf (an empty cell), `filled` where
+    they are finite, the centroids and the filled cells' descriptors finite."""
     fitnesses, filled = arrays["fitnesses"], arrays["filled"]
     if np.isnan(fitnesses).any() or (fitnesses == np.inf).any():
         raise RunDirectoryError(f"{path}: a fitness is NaN or +inf; {again}")
@@ -149,7 +151,14 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
         raise RunDirectoryError(f"{path}: `filled` disagrees with the fitnesses (-inf marks an empty cell); {again}")
     if not np.isfinite(arrays["centroids"]).all() or not np.isfinite(arrays["descriptors"][filled]).all():
         raise RunDirectoryError(f"{path}: a centroid or a filled cell's descriptor is not finite; {again}")
-    return FinalArchive(**arrays)
+
+
+def _read_headers(path: Path, again: str) -> dict[str, tuple[tuple[int, ...], np.dtype] | None]:
+    """Every array of archive.npz by name, with the shape and dtype its header claims."""
+    with _reading_archive(path, again), zipfile.ZipFile(path) as bundle:
+        return {
+            name.removesuffix(".npy"): _npy_header(bundle, name) for name in bundle.namelist() if name.endswith(".npy")
+        }
 
 
 @contextlib.contextmanager

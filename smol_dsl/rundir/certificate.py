@@ -59,13 +59,13 @@ def read_certificate(path: Path) -> CertificateRecord:
         raise RunDirectoryError(
             f'{path}: "tail_start" must be a number from 0 to 1, not {json.dumps(tail)[:40]}; {fix}'
         )
-    final = data.get("final_body", {})  # absent before multi-channel schedules: the standard body
+    final = data.get("final_body", {})  # without "final_body": the standard body, every factor 1
     if not isinstance(final, dict) or not all(
         isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0
         for value in final.values()
     ):
         raise RunDirectoryError(f'{path}: "final_body" must map channels to factors above 0; {fix}')
-    declared = data.get("channels", {"gear": None})  # absent before multi-channel schedules: plain gear
+    declared = data.get("channels", {"gear": None})  # without "channels": a schedule of plain gear alone
     try:
         channels = tuple(Channel.parse(name) for name in declared) if isinstance(declared, dict) else ()
     except ValueError as error:

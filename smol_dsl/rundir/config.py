@@ -10,6 +10,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from smol_dsl.errors import UserInputError
 from smol_dsl.rundir.files import read_text
@@ -66,13 +67,33 @@ class RunConfig:
 
 
 CONFIG_TYPES = {"str": str, "int": int, "float": float, "tuple[int, ...]": list}
+"""The Python type each annotation of RunConfig's fields stands for in JSON."""
+CONFIG_EXPECTED = {str: "a string", int: "a whole number", float: "a finite number", list: "a list of sizes"}
 CONFIG_AT_LEAST_ONE = ("evaluations", "batch_size", "num_phases", "num_centroids", "episode_length")
+"""The settings that count something the run needs at least one of."""
 
 
 def read_config(path: Path) -> RunConfig:
     """A run's config.json, checked: every setting present, of its type, and usable."""
-    text = read_text(path)
     fix = f"this is not a {CONFIG_FILE} that smol-dsl wrote; rerun the run, {leave_out(path.parent)}"
+    data = _config_data(path, fix)
+    _check_setting_names(path, data, fix)
+    _check_setting_types(path, data, fix)
+    _check_setting_values(path, data, fix)
+    data["hidden_layer_sizes"] = tuple(data["hidden_layer_sizes"])
+    try:
+        config = RunConfig(**data)
+    except (UserInputError, ValueError) as error:  # a seed outside 0 .. 2**32 - 1, say
+        raise RunDirectoryError(
+            f"{path}: {error}; rerun the run with settings the runner accepts, {leave_out(path.parent)}"
+        ) from None
+    _check_generations(path, config, fix)
+    return config
+
+
+def _config_data(path: Path, fix: str) -> dict[str, Any]:
+    """config.json's JSON object."""
+    text = read_text(path)
     try:
         data = json.loads(text)
     except (json.JSONDecodeError, RecursionError) as error:
@@ -80,6 +101,11 @@ def read_config(path: Path) -> RunConfig:
         raise RunDirectoryError(f"{path}{where}: not valid JSON ({error}); {fix}") from None
     if not isinstance(data, dict):
         raise RunDirectoryError(f"{path}: holds {type(data).__name__}, not the run's settings; {fix}")
+    return data
+
+
+def _check_setting_names(path: Path, data: dict[str, Any], fix: str) -> None:
+    """Every setting of RunConfig without a default is there, and no other."""
     fields = {field.name: field for field in dataclasses.fields(RunConfig)}
     missing = [name for name, field in fields.items() if name not in data and field.default is dataclasses.MISSING]
     if missing:
@@ -89,21 +115,29 @@ def read_config(path: Path) -> RunConfig:
         raise RunDirectoryError(
             f"{path}: unknown setting(s) {', '.join(unknown)} (from another smol-dsl version?); {fix}"
         )
+
+
+def _check_setting_types(path: Path, data: dict[str, Any], fix: str) -> None:
+    """Every setting is of its field's type (a bool is no number)."""
+    types = {field.name: CONFIG_TYPES.get(str(field.type)) for field in dataclasses.fields(RunConfig)}
     for name, value in data.items():
-        kind = CONFIG_TYPES.get(str(fields[name].type))
-        if kind is None:
-            continue
-        if kind is float:
-            ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-        elif kind is list:
-            ok = isinstance(value, list) and all(
-                isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value
-            )
-        else:
-            ok = isinstance(value, kind) and not isinstance(value, bool)
-        if not ok:
-            expected = {str: "a string", int: "a whole number", float: "a finite number", list: "a list of sizes"}[kind]
-            raise RunDirectoryError(f"{path}: {name} is {json.dumps(value)[:40]}, not {expected}; {fix}")
+        kind = types[name]
+        if kind is not None and not _is_of_type(value, kind):
+            raise RunDirectoryError(f"{path}: {name} is {json.dumps(value)[:40]}, not {CONFIG_EXPECTED[kind]}; {fix}")
+
+
+def _is_of_type(value: Any, kind: type) -> bool:
+    """Whether a JSON value is one of `kind` (CONFIG_TYPES' values): a finite float, a list of sizes of
+    at least 1, or a str or int that is not a bool."""
+    if kind is float:
+        return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if kind is list:
+        return isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value)
+    return isinstance(value, kind) and not isinstance(value, bool)
+
+
+def _check_setting_values(path: Path, data: dict[str, Any], fix: str) -> None:
+    """The task is a known one, and every count at least 1."""
     try:
         task_spec(data["task"])
     except ValueError as error:  # "unknown task 'x'; the tasks are ..."
@@ -111,13 +145,10 @@ def read_config(path: Path) -> RunConfig:
     for name in CONFIG_AT_LEAST_ONE:
         if name in data and data[name] < 1:
             raise RunDirectoryError(f"{path}: {name} is {data[name]}, but must be at least 1; {fix}")
-    data["hidden_layer_sizes"] = tuple(data["hidden_layer_sizes"])
-    try:
-        config = RunConfig(**data)
-    except (UserInputError, ValueError) as error:  # a seed outside 0 .. 2**32 - 1, say
-        raise RunDirectoryError(
-            f"{path}: {error}; rerun the run with settings the runner accepts, {leave_out(path.parent)}"
-        ) from None
+
+
+def _check_generations(path: Path, config: RunConfig, fix: str) -> None:
+    """The budget makes a generation, and at least one per phase, as the runner requires."""
     if config.generations < 1:
         raise RunDirectoryError(
             f"{path}: {config.evaluations} evaluations in batches of {config.batch_size} make no generation; {fix}"
@@ -127,4 +158,3 @@ def read_config(path: Path) -> RunConfig:
             f"{path}: {config.num_phases} phases but only {config.generations} generations; the runner refuses "
             f"such settings, so smol-dsl did not write this file; {fix}"
         )
-    return config

@@ -61,6 +61,7 @@ class RunDirectoryError(UserInputError):
 
 
 def leave_out(directory: Path) -> str:
+    """The other way out that every RunDirectoryError offers: leaving the run out of the report."""
     return f"or move {directory} out of the directories you report on"
 
 

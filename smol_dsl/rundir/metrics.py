@@ -216,6 +216,13 @@ def metrics_schema(channels: Sequence[Channel] = ()) -> MetricsSchema:
     return MetricsSchema(METRICS_SCHEMA.columns[:at] + extra + METRICS_SCHEMA.columns[at:])
 
 
+def scheduled_columns(channels: Sequence[Channel]) -> tuple[str, ...]:
+    """The columns of a run's scheduled channels, in metrics.csv's order: `alpha` first if
+    plain gear is among `channels`, then the others' in the order given."""
+    names = {column_name(channel) for channel in channels}
+    return tuple(name for name in metrics_schema(channels).names if name in names)
+
+
 def body_columns(channels: Sequence[Channel], body: Sequence[float]) -> dict[str, float]:
     """A body's columns of a metrics row: `alpha` (1 unless plain gear is among `channels`)
     and each other channel's factor, for the (C,) `body` of `channels`."""
@@ -270,8 +277,9 @@ class MetricsLog:
             raise OSError(error.errno, error.strerror or str(error), str(self.path)) from error
 
 
-def alpha_one_evaluations(rows: Sequence[Mapping[str, Any]], first_tail_phase: int) -> float | None:
-    """Training evaluations at the start of the first phase of the alpha = 1 tail."""
+def final_body_evaluations(rows: Sequence[Mapping[str, Any]], first_tail_phase: int) -> float | None:
+    """Training evaluations at the start of the first phase of the tail, where the body is
+    the final one for good (None: the rows end before it)."""
     for row in rows:
         if row["phase"] >= first_tail_phase:
             return float(row["evaluations"])
@@ -299,46 +307,17 @@ def read_metrics(
     generations and phases. Raises RunDirectoryError naming the file and line."""
     directory = path.parent
     rerun = f"rerun the run, {leave_out(directory)}"
+    order = _RowOrder(path, config, rerun)
     rows: list[dict[str, Any]] = []
-    lines: list[int] = []
-    seen: dict[tuple[Any, ...], int] = {}
     line = 0
     try:
         with open(path, newline="", encoding="utf-8") as file:
             reader = csv.reader(file)
-            header = next(reader, None)
-            if header is None:
-                raise RunDirectoryError(f"{path}: empty; the run wrote no metrics (it stopped at once); {rerun}")
-            if schema is METRICS_SCHEMA:  # and a column per scheduled channel the header names
-                schema = schema_of_header(header)
-            missing = [name for name in schema.names if name not in header]
-            if missing or len(set(header)) != len(header):
-                what = f"lacks the column(s) {', '.join(missing)}" if missing else "names a column twice"
-                raise RunDirectoryError(f"{path}:1: the header {what}; it should be {','.join(schema.names)}; {rerun}")
+            header, schema = _read_header(path, next(reader, None), schema, rerun)
             for values in reader:
                 line = reader.line_num
-                if not values:
-                    continue  # a blank line
-                if len(values) != len(header):
-                    raise RunDirectoryError(
-                        f"{path}:{line}: {len(values)} values where the header has {len(header)} columns (a row "
-                        f"cut short, or two rows run together); delete or repair the line, or {rerun}"
-                    )
-                try:
-                    row = schema.parse_row(dict(zip(header, values, strict=True)))
-                except ValueError as error:
-                    raise RunDirectoryError(f"{path}:{line}: {error}; {rerun}") from None
-                key = (row["event"], row["phase"], row["evaluations"])
-                if key in seen:
-                    raise RunDirectoryError(
-                        f"{path}:{line}: repeats line {seen[key]} (event {row['event']}, phase {row['phase']}, "
-                        f"{row['evaluations']} evaluations); every row must appear once: delete the repeated "
-                        f"line, or {rerun}"
-                    )
-                seen[key] = line
-                _check_order(path, line, row, rows[-1] if rows else None, lines[-1] if lines else 0, config, rerun)
-                rows.append(row)
-                lines.append(line)
+                if values:  # not a blank line
+                    rows.append(order.add(line, _parse_row(path, line, header, values, schema, rerun)))
     except UnicodeDecodeError:
         raise RunDirectoryError(f"{path}: not a text file (it is not UTF-8); {rerun}") from None
     except csv.Error as error:
@@ -352,34 +331,94 @@ def read_metrics(
     return rows
 
 
-def _check_order(
-    path: Path,
-    line: int,
-    row: dict[str, Any],
-    previous: dict[str, Any] | None,
-    previous_line: int,
-    config: RunConfig | None,
-    rerun: str,
-) -> None:
-    """A row follows the one before as the runner writes them."""
-    where = f"{path}:{line}"
-    if config is not None and row["generation"] > config.generations:
+def _read_header(
+    path: Path, header: list[str] | None, schema: MetricsSchema, rerun: str
+) -> tuple[list[str], MetricsSchema]:
+    """metrics.csv's header, checked against the schema: every column there, none twice. The
+    default schema becomes the runner's columns and one per scheduled channel the header names."""
+    if header is None:
+        raise RunDirectoryError(f"{path}: empty; the run wrote no metrics (it stopped at once); {rerun}")
+    if schema is METRICS_SCHEMA:
+        schema = schema_of_header(header)
+    missing = [name for name in schema.names if name not in header]
+    if missing or len(set(header)) != len(header):
+        what = f"lacks the column(s) {', '.join(missing)}" if missing else "names a column twice"
+        raise RunDirectoryError(f"{path}:1: the header {what}; it should be {','.join(schema.names)}; {rerun}")
+    return header, schema
+
+
+def _parse_row(
+    path: Path, line: int, header: list[str], values: list[str], schema: MetricsSchema, rerun: str
+) -> dict[str, Any]:
+    """One line's values, typed by the schema: one per column of the header, each valid."""
+    if len(values) != len(header):
+        raise RunDirectoryError(
+            f"{path}:{line}: {len(values)} values where the header has {len(header)} columns (a row "
+            f"cut short, or two rows run together); delete or repair the line, or {rerun}"
+        )
+    try:
+        return schema.parse_row(dict(zip(header, values, strict=True)))
+    except ValueError as error:
+        raise RunDirectoryError(f"{path}:{line}: {error}; {rerun}") from None
+
+
+class _RowOrder:
+    """The rows read so far: each new one must appear once, lie within the run's config and
+    follow the one before as the runner writes them."""
+
+    def __init__(self, path: Path, config: RunConfig | None, rerun: str) -> None:
+        self.path, self.config, self.rerun = path, config, rerun
+        self.seen: dict[tuple[Any, ...], int] = {}  # (event, phase, evaluations) -> its line
+        self.previous: dict[str, Any] | None = None
+        self.previous_line = 0
+
+    def add(self, line: int, row: dict[str, Any]) -> dict[str, Any]:
+        """The row, checked against those before it."""
+        where = f"{self.path}:{line}"
+        key = (row["event"], row["phase"], row["evaluations"])
+        if key in self.seen:
+            raise RunDirectoryError(
+                f"{where}: repeats line {self.seen[key]} (event {row['event']}, phase {row['phase']}, "
+                f"{row['evaluations']} evaluations); every row must appear once: delete the repeated "
+                f"line, or {self.rerun}"
+            )
+        self.seen[key] = line
+        if self.config is not None:
+            _check_in_run(where, row, self.config, self.rerun)
+        if self.previous is None:
+            _check_first(where, row, self.rerun)
+        else:
+            _check_follows(where, row, self.previous, self.previous_line, self.rerun)
+        self.previous, self.previous_line = row, line
+        return row
+
+
+def _check_in_run(where: str, row: dict[str, Any], config: RunConfig, rerun: str) -> None:
+    """A row's generation and phase are among those of the run's config."""
+    if row["generation"] > config.generations:
         raise RunDirectoryError(
             f"{where}: generation {row['generation']}, but {CONFIG_FILE} gives the run {config.generations} "
             f"generations; the two files are from different runs: {rerun}"
         )
-    if config is not None and row["phase"] >= config.num_phases:
+    if row["phase"] >= config.num_phases:
         raise RunDirectoryError(
             f"{where}: phase {row['phase']}, but {CONFIG_FILE} gives the run {config.num_phases} phases "
             f"(0 to {config.num_phases - 1}); the two files are from different runs: {rerun}"
         )
-    if previous is None:
-        if row["event"] != "init" or row["generation"] != 0:
-            raise RunDirectoryError(
-                f"{where}: the first row must be generation 0's init row, not generation {row['generation']}'s "
-                f"{row['event']} row; the start of the file is missing: {rerun}"
-            )
-        return
+
+
+def _check_first(where: str, row: dict[str, Any], rerun: str) -> None:
+    """The first row is generation 0's init row."""
+    if row["event"] != "init" or row["generation"] != 0:
+        raise RunDirectoryError(
+            f"{where}: the first row must be generation 0's init row, not generation {row['generation']}'s "
+            f"{row['event']} row; the start of the file is missing: {rerun}"
+        )
+
+
+def _check_follows(where: str, row: dict[str, Any], previous: dict[str, Any], previous_line: int, rerun: str) -> None:
+    """A row follows the one before as the runner writes them: a reevaluate row in the same
+    generation, any other row in the next, phases and evaluations never going back."""
     expected = previous["generation"] + (0 if row["event"] == "reevaluate" else 1)
     if row["event"] == "init" or row["generation"] != expected or row["phase"] < previous["phase"]:
         raise RunDirectoryError(

@@ -19,7 +19,7 @@ from smol_dsl.rundir.certificate import certificate_record, certificate_text, re
 from smol_dsl.rundir.config import RunConfig, read_config
 from smol_dsl.rundir.files import read_text, write_text
 from smol_dsl.rundir.layout import CERTIFICATE_FILE, CERTIFICATE_TEXT_FILE, CONFIG_FILE, METRICS_FILE, SCHEDULE_FILE
-from smol_dsl.rundir.metrics import alpha_one_evaluations, first_tail_phase, read_metrics
+from smol_dsl.rundir.metrics import final_body_evaluations, first_tail_phase, read_metrics
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
@@ -90,9 +90,10 @@ class RunRecord:
         evaluations = np.asarray([row["evaluations"] for row in self.rows], dtype=float)
         return evaluations, np.asarray([row[metric] for row in self.rows], dtype=float)
 
-    def alpha_one_evaluations(self) -> float | None:
-        """Training evaluations when alpha becomes 1 for good (the first tail phase starts)."""
-        return alpha_one_evaluations(self.rows, first_tail_phase(self.tail_start, self.config.num_phases))
+    def final_body_evaluations(self) -> float | None:
+        """Training evaluations when the body becomes the final one for good (the first tail
+        phase starts; for plain gear, where alpha is 1 for good)."""
+        return final_body_evaluations(self.rows, first_tail_phase(self.tail_start, self.config.num_phases))
 
     def final_archive(self) -> FinalArchive:
         """The final archive, read (and checked) if it was not."""
