@@ -1,6 +1,9 @@
 """Shared test set-up: JAX on the CPU with a compilation cache for the session, the bundled
 library parsed and verified once, and the Brax tasks the task tests share.
 
+`pytest -m "not slow"` leaves out what compiles Brax physics or trains (the edit loop);
+tests that use a compiling fixture are marked here, the others in their own files.
+
 Compile once per session: JAX's persistent compilation cache is on for the test session and
 for every subprocess it starts (the CLI runs of the resume and kill tests inherit the
 environment), in a directory of this session's unless `JAX_COMPILATION_CACHE_DIR` names one
@@ -29,6 +32,18 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
 import smol_dsl
 
+COMPILING_FIXTURES = {"small_run", "walker", "cheetah"}
+"""Fixtures that build and compile Brax tasks: a test that uses one is `slow`."""
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m` selects by markers
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark `slow` every test that uses a compiling fixture (tests that compile or train by
+    themselves carry the marker in their file)."""
+    for item in items:
+        if COMPILING_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
 
 @pytest.fixture(scope="session")
 def library() -> dict[str, smol_dsl.Schedule]:
@@ -45,6 +60,19 @@ def walker():
     from smol_dsl.tasks import make_task
 
     return make_task("walker2d", episode_length=TASK_EPISODE)
+
+
+@pytest.fixture(scope="session")
+def small_run(library, tmp_path_factory):
+    """An uninterrupted run with the settings of small_runs.FLAGS, as `smol-dsl run` makes it
+    (test_run_directories, test_storage_errors, test_checkpoint)."""
+    from small_runs import CONFIG
+
+    from smol_dsl.runner import run_experiment
+
+    out = tmp_path_factory.mktemp("small-run") / "run"
+    run_experiment("walker2d", library["human"], CONFIG, out_dir=out)
+    return out
 
 
 @pytest.fixture(scope="session")

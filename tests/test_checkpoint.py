@@ -1,15 +1,21 @@
-"""Checkpoints written in the background: one at a time, skipped while busy, errors surfaced."""
+"""Checkpoints: written in the background (one at a time, skipped while busy, errors
+surfaced), and refused on resume when damaged, another run's, or shaped for another policy."""
 
 from __future__ import annotations
 
+import shutil
 import threading
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from small_runs import FLAGS, RUN, cli, copy_of
 
-from smol_dsl.runner import RunError, checkpoint
-from smol_dsl.runner.checkpoint import CheckpointWriter, host_copy
+from smol_dsl.runner import RunError, checkpoint, preset_config
+from smol_dsl.runner.checkpoint import CheckpointWriter, host_copy, load_checkpoint
+from smol_dsl.runner.directories import prepare_run_directory
+from smol_dsl.tasks import make_task
 
 
 @pytest.fixture
@@ -76,3 +82,46 @@ def test_host_copy_owns_its_memory():
     copy = host_copy(device_array)
     assert not np.shares_memory(copy, np.asarray(device_array))
     np.testing.assert_array_equal(copy, np.arange(8.0))
+
+
+@pytest.mark.parametrize("damage", ["truncated", "empty", "flipped"])
+def test_resume_from_a_damaged_checkpoint(small_run, tmp_path, capsys, damage):
+    out = copy_of(small_run, tmp_path)
+    path = out / "checkpoint.npz"
+    data = path.read_bytes()
+    damaged = {"truncated": data[: len(data) // 2], "empty": b"", "flipped": data[:300] + b"\xff" + data[301:]}
+    path.write_bytes(damaged[damage])
+    code, err = cli([*RUN, "--out", str(out), "--resume"], capsys)
+    assert code == 2
+    assert f"{path} cannot be resumed from: it is damaged" in err
+    assert "delete checkpoint.npz and run the same command with --resume to start the run over" in err
+
+
+def test_resume_from_a_checkpoint_of_another_run(small_run, library, tmp_path, capsys):
+    """walker2d's and halfcheetah's archives have the same shapes: the checkpoint says whose it is."""
+    out = tmp_path / "halfcheetah"
+    cheetah = preset_config(
+        "halfcheetah", "quick", evaluations=96, batch_size=8, num_phases=10, num_centroids=16, episode_length=10
+    )
+    prepare_run_directory(out, library["human"], cheetah, resume=False).release()
+    shutil.copy(small_run / "checkpoint.npz", out / "checkpoint.npz")
+    code, err = cli(["run", "halfcheetah", "human", *FLAGS, "--no-progress", "--out", str(out), "--resume"], capsys)
+    assert code == 2
+    assert f"{out / 'checkpoint.npz'} cannot be resumed from: it was written by another run" in err
+    assert "(task walker2d, not halfcheetah)" in err
+
+
+def test_a_checkpoint_shaped_for_another_policy_is_refused(small_run):
+    other = make_task("walker2d", episode_length=10, hidden_layer_sizes=(8, 8))
+    template = other.init_policies(jax.random.key(0), 1)
+    with pytest.raises(
+        RunError, match=r"its genotypes/params/Dense_0/bias has shape \(1, 16, 64\), but this one needs \(1, 16, 8\)"
+    ):
+        load_checkpoint(small_run / "checkpoint.npz", template, 1, 16, 2)
+
+
+def test_sweep_checkpoint_that_is_not_one(tmp_path):
+    path = tmp_path / "sweep-checkpoint.npz"
+    path.write_bytes(b"not a zip file at all")
+    with pytest.raises(RunError, match="cannot be resumed from: it is damaged"):
+        load_checkpoint(path, {"w": np.zeros((1, 3))}, 2, 16)
