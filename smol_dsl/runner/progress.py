@@ -6,7 +6,7 @@ import math
 import time
 from typing import TYPE_CHECKING, Any
 
-from smol_dsl.rundir import METRIC_FIELDS
+from smol_dsl.rundir import ALPHA, METRIC_FIELDS
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
@@ -42,7 +42,7 @@ class ProgressBar:
         rate = (evaluations - self._first_evaluations) / elapsed
         phase = f"phase {row['phase'] + 1}/{self._config.num_phases}"
         if len(rows) == 1:
-            body = " ".join(f"{name} {row[name]:.3f}" for name in ("alpha", *channel_columns(row)))
+            body = " ".join(f"{name} {row[name]:.3f}" for name in (ALPHA, *channel_columns(row)))
             about = f"{phase} {body} cov {row['coverage']:.1f}% max {row['max_fitness']:.1f}"
         else:
             coverage = sorted(r["coverage"] for r in rows)[len(rows) // 2]
@@ -56,7 +56,8 @@ class ProgressBar:
 
 
 def channel_columns(row: dict[str, Any]) -> list[str]:
-    """A metrics row's columns of scheduled channels other than the actuators' gear (alpha)."""
+    """A metrics row's columns of scheduled channels other than plain gear (`alpha`, which
+    every row has)."""
     return [name for name in row if name not in METRIC_FIELDS]
 
 
