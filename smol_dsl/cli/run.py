@@ -139,7 +139,7 @@ class Plan:
         return -1 if self.args.runs_per_step is None else self.args.runs_per_step
 
 
-class Training(ABC):
+class TrainingCommand(ABC):
     """`run` or `sweep`: `train` takes the steps both share; the methods below are what differs."""
 
     command: str
@@ -206,7 +206,7 @@ class Training(ABC):
         """What is printed when training has ended."""
 
 
-class Run(Training):
+class Run(TrainingCommand):
     """`smol-dsl run`: one schedule, one seed (--seed, or the preset's), in one run directory."""
 
     command = "run"
@@ -262,7 +262,7 @@ class Run(Training):
         return summary_line(results[0], plan.schedules[0])
 
 
-class Sweep(Training):
+class Sweep(TrainingCommand):
     """`smol-dsl sweep`: every (schedule, seed) pair, --seeds seeds from --first-seed, in one
     sweep directory (or this process's share of them)."""
 
