@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.language.assembly import parse_program
 from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel, differing_finals
 from smol_dsl.language.compiler import compile_program
 from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
 from smol_dsl.language.symbolic import SymbolicCurve, SymbolicProgram, SymbolicSegment, percent
-from smol_dsl.language.syntax import parse_program
 from smol_dsl.language.verify import Certificate, verify
 
 if TYPE_CHECKING:
