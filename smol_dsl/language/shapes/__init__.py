@@ -27,7 +27,7 @@ import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from smol_dsl.language.shapes.base import Compiled, Drawn, Evaluation, Formula, Line, Shape
+from smol_dsl.language.shapes.base import Compiled, Drawn, Evaluation, Formula, Line, SegmentContext, Shape
 from smol_dsl.language.shapes.bell import Bell
 from smol_dsl.language.shapes.constant import Constant
 from smol_dsl.language.shapes.expression import Expression
@@ -42,6 +42,7 @@ __all__ = [
     "Evaluation",
     "Formula",
     "Line",
+    "SegmentContext",
     "Shape",
     "keywords",
     "register",

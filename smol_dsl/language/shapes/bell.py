@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     import jax
 
     from smol_dsl.language import tree
-    from smol_dsl.language.compiler import SegmentContext
+    from smol_dsl.language.shapes.base import SegmentContext
 
 MIN_BELL_WIDTH, MAX_BELL_WIDTH = sp.Rational(1, 2**100), sp.Integer(2**100)
 
