@@ -38,6 +38,8 @@ ENCLOSURE_PIECES = 64
 """Sub-intervals of the first enclosure."""
 REFINEMENTS = 256
 """Bisections spent tightening each side of an enclosure."""
+RETRY_SECONDS = 0.05
+"""CPU time between alarms after a budget has run out, until one stops the method."""
 SLOPE_ROUNDING = 1e-12
 """Relative slack for the sign of a slope from interval arithmetic (a few ulps of rounding)."""
 
@@ -54,22 +56,29 @@ def time_limit(seconds: float) -> Iterator[None]:
     only; elsewhere no limit).
 
     CPU time, not wall-clock time, so that a busy machine gives the same verdicts as an idle
-    one: sympy's methods are CPU-bound.
+    one: sympy's methods are CPU-bound. Python ignores an exception raised while the signal
+    interrupts a garbage-collector or weak-reference callback, so the alarm fires again every
+    RETRY_SECONDS until the exception reaches the code under the limit.
     """
     if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
         yield
         return
+    armed = True
 
     def on_alarm(signum: int, frame: Any) -> None:
-        raise VerificationTimeoutError
+        if armed:
+            raise VerificationTimeoutError
 
     previous = signal.signal(signal.SIGPROF, on_alarm)
-    signal.setitimer(signal.ITIMER_PROF, seconds)
+    signal.setitimer(signal.ITIMER_PROF, seconds, RETRY_SECONDS)
     try:
         yield
     finally:
-        signal.setitimer(signal.ITIMER_PROF, 0)
-        signal.signal(signal.SIGPROF, previous)
+        try:
+            armed = False
+        finally:  # even if the alarm raised just before `armed` was cleared
+            signal.setitimer(signal.ITIMER_PROF, 0)
+            signal.signal(signal.SIGPROF, previous)
 
 
 _SYMPY_FAILURES = (
