@@ -36,7 +36,9 @@ MAX_SEGMENTS = 1_000
 takes about 1 ms each."""
 
 
-def _segment(scope: Scope, index: int, node: tree.Segment, owner: str, final: sp.Expr) -> SymbolicSegment:
+def _segment(
+    scope: Scope, index: int, node: tree.Segment, owner: str, final: sp.Expr, quantity: str
+) -> SymbolicSegment:
     label = f"segment {index + 1}{owner}"
     start = scope.position(node.start, f"the start of {label}")
     end = scope.position(node.end, f"the end of {label}")
@@ -67,6 +69,7 @@ def _segment(scope: Scope, index: int, node: tree.Segment, owner: str, final: sp
         params=compiled.params,
         draws=compiled.draws,
         owner=owner,
+        quantity=quantity,
     )
 
 
@@ -124,7 +127,9 @@ def _curve(scope: Scope, section: tree.Section, named: bool, segments_before: in
             "`random LOW .. HIGH every STEP`, or an `expr` segment",
         )
     final = _final(scope, section)
-    segments = tuple(_segment(scope, i, s, owner, final) for i, s in enumerate(section.segments))
+    segments = tuple(
+        _segment(scope, i, s, owner, final, section.channel.quantity) for i, s in enumerate(section.segments)
+    )
     place = None
     if section.line is not None:
         place = ChannelPlace(section.line.span, section.line.target_spans)

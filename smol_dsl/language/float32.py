@@ -116,9 +116,12 @@ def float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> float:
     return worst
 
 
-def located_float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational, *, where: str, span: Span) -> float:
+def located_float32_error(
+    expr: sp.Expr, start: sp.Rational, end: sp.Rational, *, where: str, span: Span, quantity: str = "alpha"
+) -> float:
     """`float32_error` within the enclosure time budget, or a ScheduleError at `span` that names
-    the segment (`where`) and the sub-expression that fails."""
+    the segment (`where`) and the sub-expression that fails; `quantity` is what the hint calls
+    the channel's value."""
     try:
         with time_limit(ENCLOSURE_SECONDS):
             return float32_error(expr, start, end)
@@ -129,7 +132,7 @@ def located_float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational, *
         raise ScheduleError(
             f"{where} cannot be evaluated safely in float32: `{part}` {failure.reason}{at}",
             span=span,
-            hint="alpha is computed in 32-bit floats (JAX's default): keep every part of the expression between "
+            hint=f"{quantity} is computed in 32-bit floats (JAX's default): keep every part of the expression between "
             "about 1e-36 and 1e36 in size, and divisors and logarithm arguments well away from 0 "
             "(e.g. rescale `(1e20*t)**2 / 1e40` as `t**2`)",
         ) from None

@@ -147,7 +147,9 @@ class Shape:
         """A bound on |float32 alpha - exact alpha| over the piece, whose exact range is [low, high]."""
         if self.float32_ulps is not None:
             return self.float32_ulps * UNIT * max(abs(low), abs(high))
-        return located_float32_error(piece.expr, piece.start, piece.end, where=segment.describe(), span=segment.span)
+        return located_float32_error(
+            piece.expr, piece.start, piece.end, where=segment.describe(), span=segment.span, quantity=segment.quantity
+        )
 
     def is_constant(self, segment: SymbolicSegment, value: sp.Expr) -> bool:
         """Whether the segment is identically `value` (proven exactly): with the channel's final
