@@ -1115,17 +1115,27 @@ def channel_headers(draw: Callable, kind: str, targets: tuple[str, ...]) -> str:
 
 @st.composite
 def multi_channel_schedules(
-    draw: Callable, *, kinds: dict[str, int] | None = None, max_channels: int = 3, max_body: int = 2
+    draw: Callable,
+    *,
+    kinds: dict[str, int] | None = None,
+    max_channels: int = 3,
+    max_body: int = 2,
+    targets: bool | None = None,
 ) -> MultiChannelSpec:
-    """A valid file of one to `max_channels` distinct channels (random kinds, targets, finals)."""
+    """A valid file of one to `max_channels` distinct channels (random kinds, targets, finals).
+
+    `targets`: True, the first channel names targets; False, no channel does; None, a channel
+    of a kind that takes targets names some half the time.
+    """
     builder = _Builder(draw, draw(st.sampled_from((0, 0, 3))))
     count = draw(st.integers(1, max_channels))
     channels: list[ChannelSpec] = []
     while len(channels) < count:
-        kind = draw(st.sampled_from(CHANNEL_KINDS))
-        targets: tuple[str, ...] = ()
-        if kind in TARGETED_KINDS and draw(st.booleans()):
-            targets = tuple(draw(st.lists(target_names, min_size=1, max_size=3, unique=True)))
+        first_targeted = targets is True and not channels
+        kind = draw(st.sampled_from(sorted(TARGETED_KINDS) if first_targeted else CHANNEL_KINDS))
+        names: tuple[str, ...] = ()
+        if kind in TARGETED_KINDS and targets is not False and (first_targeted or draw(st.booleans())):
+            names = tuple(draw(st.lists(target_names, min_size=1, max_size=3, unique=True)))
         final = draw(st.sampled_from(FINALS))
         final_text = None if final == 1 and draw(st.booleans()) else builder.number(final)
         builder.final = final
@@ -1138,9 +1148,9 @@ def multi_channel_schedules(
             declare=True,
             bounds=None,
         )
-        header = draw(channel_headers(kind, targets))
+        header = draw(channel_headers(kind, names))
         order = tuple(draw(st.permutations(("final", "bounds", "continuous"))))
-        channel = ChannelSpec(kind, targets, header, final_text, body, order)
+        channel = ChannelSpec(kind, names, header, final_text, body, order)
         if not any(channel.same_channel(other) for other in channels):
             channels.append(channel)
     implicit = channels[0].kind == "gear" and not channels[0].targets and draw(st.booleans())

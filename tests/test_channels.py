@@ -216,6 +216,11 @@ ERRORS = {
     "final without value": ("channel mass\nfinal\n0% .. 100%: tail\n", 2, 6, 1, "unexpected end of line", "final 0.5"),
     "final is reserved": ("let final = 0.5\n0% .. 100%: tail\n", 1, 1, 15, "`final` is a reserved word", "another"),
     "channel is reserved": ("let channel = 1\n0% .. 100%: tail\n", 1, 1, 15, "`channel` is a reserved word", "another"),
+    "mass not finite in float32": (
+        "channel mass\n0% .. 90%: expr 1 + (1e20*t)**2/(1e20*t**2+1e40)\n" + TAIL,
+        2, 1, 48, "segment 1 of mass (0% .. 90%, expr) cannot be evaluated safely in float32",
+        "mass is computed in 32-bit floats (JAX's default)",
+    ),
 }  # fmt: skip
 
 
@@ -242,6 +247,9 @@ def test_plain_gear_keeps_its_messages_word_for_word():
     with pytest.raises(ScheduleError) as caught:
         smol_dsl.parse("channel gear\n0% .. 95%: linear 1.5 -> 1\n95% .. 100%: tail\n")
     assert caught.value.message.startswith("the schedule must end with alpha = 1 over at least the final 10%")
+    with pytest.raises(ScheduleError) as caught:
+        smol_dsl.parse("0% .. 90%: expr 1 + (1e20*t)**2/(1e20*t**2+1e40)\n" + TAIL)
+    assert caught.value.hint.startswith("alpha is computed in 32-bit floats (JAX's default): keep every part")
 
 
 # ----------------------------------------------------------------------------- certificates and final bodies
@@ -350,7 +358,7 @@ def test_check_targets_knows_links_from_actuators():
     assert "links: torso, thigh, thigh_left" in caught.value.hint
 
 
-def test_check_targets_without_a_body_plan():
+def test_check_targets_for_a_task_that_lists_no_targets():
     smol_dsl.parse("channel mass\n0% .. 100%: tail\n").check_targets(None, "blob")  # no targets: nothing to check
     schedule = smol_dsl.parse("channel gear[a, b]\n0% .. 100%: tail\n")
     with pytest.raises(ScheduleError, match="task blob does not list its actuators") as caught:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from checking import check_cli
 
 import smol_dsl
 from smol_dsl import ScheduleError
@@ -237,3 +238,30 @@ def test_an_exact_identity_meets_tight_bounds():
     schedule = smol_dsl.parse("bounds 1 .. 1.5\n0% .. 50%: linear 1.5 -> 1\n50% .. 100%: expr sin(t)**2 + cos(t)**2\n")
     assert schedule.certificate.minimum == 1.0
     assert schedule.tail_start == 0.5
+
+
+# ----------------------------------------------------------------------------- numbers
+
+
+@pytest.mark.parametrize(
+    ("text", "column", "hint"),
+    [
+        ("constant 1\u06605", 22, "ARABIC-INDIC DIGIT ZERO"),
+        ("constant \uff11.5", 21, "FULLWIDTH DIGIT ONE"),
+        ("constant 1.5\u00b2", 24, "SUPERSCRIPT TWO"),
+        ("linear 1.5 \u2212> 1", 23, "write the ASCII `-`"),
+        ("constant 1\u00b75", 22, "write the ASCII `*`"),
+    ],
+)
+def test_numbers_are_ascii_digits_only(text, column, hint, tmp_path, capsys):
+    code, err = check_cli(tmp_path, f"0% .. 90%: {text}\n90% .. 100%: tail\n", capsys)
+    assert code == 2
+    assert f"hostile.sched:1:{column}: error: unexpected character" in err
+    assert hint in err
+
+
+def test_an_oversized_let_is_out_of_range_not_a_log_of_a_negative(tmp_path, capsys):
+    code, err = check_cli(tmp_path, "let big = 1e300 * 1e300\n0% .. 90%: constant 1\n90% .. 100%: tail\n", capsys)
+    assert code == 2
+    assert "`let big` is 1.00E+600, out of range" in err
+    assert "log" not in err and "square root" not in err

@@ -580,16 +580,21 @@ def test_one_channel_files_equal_their_gear_only_form(spec: ScheduleSpec, seed: 
 
 
 @settings(max_examples=10, **COMMON)
-@given(multi_channel_schedules(max_body=1), st.data())
+@given(multi_channel_schedules(max_body=1, targets=False))
+def test_check_targets_needs_no_listing_of_a_body_when_no_channel_names_targets(multi: MultiChannelSpec):
+    schedule = smol_dsl.parse(multi.text, path="m.sched")
+    schedule.check_targets(Anatomy((), ()).targets(), "toy")
+    schedule.check_targets(None, "toy")
+
+
+@settings(max_examples=10, **COMMON)
+@given(multi_channel_schedules(max_body=1, targets=True), st.data())
 def test_check_targets_accepts_exactly_the_bodies_that_have_every_target(multi: MultiChannelSpec, data):
     schedule = smol_dsl.parse(multi.text, path="m.sched")
     actuators = sorted({t for c in multi.channels if c.kind == "gear" for t in c.targets})
     links = sorted({t for c in multi.channels if c.kind == "mass" for t in c.targets})
     schedule.check_targets(Anatomy(tuple(actuators), tuple(links)).targets(), "toy")
     targeted = [c for c in multi.channels if c.targets]
-    if not targeted:
-        schedule.check_targets(None, "toy")
-        return
     channel = data.draw(st.sampled_from(targeted))
     missing = data.draw(st.sampled_from(channel.targets))
     actuators = [a for a in actuators if a != missing or channel.kind != "gear"]

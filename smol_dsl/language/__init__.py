@@ -9,11 +9,16 @@ modules, in the order a schedule goes through them:
 - `channels`: the channel kinds and `Channel` (a kind, and the actuators or links it is limited to).
 - `sched.lark`: the grammar, one rule per segment shape (`KEYWORD_shape`).
 - `grammar`: sched.lark completed from the shape registry; the reserved words.
-- `syntax`: text -> syntax tree (the Lark parser, its Transformer, friendly syntax errors).
-- `tree`: the syntax tree's node types.
-- `compiler`: syntax tree -> exact sympy: constants, positions, each segment through its shape.
+- `text`: the checks of a text before it is parsed (size, control characters, not empty).
+- `syntax`: text -> statements (the Lark parse and its Transformer).
+- `hints`: parse errors in words, located and with a hint.
+- `assembly`: statements -> program (channel lines checked, directives, lets, sections); `parse_program`.
+- `tree`: the syntax tree's node types: the statements and the assembled program.
+- `expressions`: a syntax-tree expression -> exact sympy, under a `Scope` of names.
+- `compiler`: program -> exact sympy: constants, each channel's section, each segment through its shape.
 - `symbolic`: the exact form: the variable `T`, pieces, segments, each channel's curve, programs.
-- `shapes`: the shape registry, one unit per kind of segment (`shapes.base.Shape`).
+- `shapes`: the shape registry, one unit per kind of segment (`shapes.base.Shape`), and the
+  `SegmentContext` a unit compiles its segment with.
 - `verify`: the language's rules proven for each channel, and the `Certificate`.
 - `prover`: extrema, monotonicity and domains of a function of t, by sympy or interval arithmetic,
   under CPU-time budgets.

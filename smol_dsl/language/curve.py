@@ -23,6 +23,7 @@ from smol_dsl.language.shapes import Drawn, Formula, Line
 from smol_dsl.language.symbolic import SymbolicCurve, SymbolicSegment, percent
 from smol_dsl.language.verify import Certificate, tail_start
 
+# JAX is imported inside the functions that evaluate: parsing and checking a schedule never load it.
 if TYPE_CHECKING:
     import jax
     import sympy as sp
@@ -109,9 +110,9 @@ class Curve:
         return self._symbolic.piecewise
 
     def channel_key(self, key: jax.Array | None) -> jax.Array:
-        """The key this curve's random segments draw from: `key` itself for plain gear (as a
-        file of one channel always did), else `fold_in(key, crc32(name))`, whatever the
-        order in which channels are declared."""
+        """The key this curve's random segments draw from: `key` itself for plain gear (so that a
+        plain-gear file draws from the run's key, with or without other channels), else
+        `fold_in(key, crc32(name))`, whatever the order in which channels are declared."""
         import jax
 
         key = default_key(key)

@@ -24,6 +24,7 @@ positive. `located_float32_error` is the proof as a shape's hook uses it (`Shape
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -115,9 +116,12 @@ def float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> float:
     return worst
 
 
-def located_float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational, *, where: str, span: Span) -> float:
+def located_float32_error(
+    expr: sp.Expr, start: sp.Rational, end: sp.Rational, *, where: str, span: Span, quantity: str = "alpha"
+) -> float:
     """`float32_error` within the enclosure time budget, or a ScheduleError at `span` that names
-    the segment (`where`) and the sub-expression that fails."""
+    the segment (`where`) and the sub-expression that fails; `quantity` is what the hint calls
+    the channel's value."""
     try:
         with time_limit(ENCLOSURE_SECONDS):
             return float32_error(expr, start, end)
@@ -128,7 +132,7 @@ def located_float32_error(expr: sp.Expr, start: sp.Rational, end: sp.Rational, *
         raise ScheduleError(
             f"{where} cannot be evaluated safely in float32: `{part}` {failure.reason}{at}",
             span=span,
-            hint="alpha is computed in 32-bit floats (JAX's default): keep every part of the expression between "
+            hint=f"{quantity} is computed in 32-bit floats (JAX's default): keep every part of the expression between "
             "about 1e-36 and 1e36 in size, and divisors and logarithm arguments well away from 0 "
             "(e.g. rescale `(1e20*t)**2 / 1e40` as `t**2`)",
         ) from None
@@ -202,27 +206,45 @@ def _node(node: sp.Expr, x: Any, memo: dict[sp.Expr, _Value]) -> _Value:
     if node.is_Pow:
         return _power(node, x, memo)
     args = [_evaluate(arg, x, memo) for arg in node.args]
-    if isinstance(node, sp.exp):
-        return _exp(args[0], node, x)
-    if isinstance(node, sp.log):
-        return _log(args[0], node, x)
-    if isinstance(node, (sp.sin, sp.cos)):
-        (arg,) = args
-        exact = iv.sin(arg.exact) if isinstance(node, sp.sin) else iv.cos(arg.exact)
-        # XLA reduces the argument in float32, so its error grows with the argument's size.
-        error = arg.error + FUNCTION_ULPS * UNIT * (1 + arg.magnitude)
-        return _Value(exact, _slack(min(error, 2.0)))
-    if isinstance(node, sp.tanh):
-        (arg,) = args
-        exact = 1 - 2 / (iv.exp(2 * arg.exact) + 1)
-        return _Value(exact, _slack(min(arg.error + FUNCTION_ULPS * UNIT, 2.0)))
-    if isinstance(node, sp.Abs):
-        return _Value(abs(args[0].exact), args[0].error)
-    if isinstance(node, (sp.Min, sp.Max)):
-        pick = min if isinstance(node, sp.Min) else max
-        exact = iv.mpf([pick(a.exact.a for a in args), pick(a.exact.b for a in args)])
-        return _Value(exact, max(a.error for a in args))
+    for kind, bound in _FUNCTIONS:
+        if isinstance(node, kind):
+            return bound(node, args, x)
     raise _fail(node, f"is a {type(node).__name__}, which smol-dsl cannot bound in float32", x)
+
+
+def _sin_cos(node: sp.Expr, args: list[_Value], x: Any) -> _Value:
+    (arg,) = args
+    exact = iv.sin(arg.exact) if isinstance(node, sp.sin) else iv.cos(arg.exact)
+    # XLA reduces the argument in float32, so its error grows with the argument's size.
+    error = arg.error + FUNCTION_ULPS * UNIT * (1 + arg.magnitude)
+    return _Value(exact, _slack(min(error, 2.0)))
+
+
+def _tanh(node: sp.Expr, args: list[_Value], x: Any) -> _Value:
+    (arg,) = args
+    exact = 1 - 2 / (iv.exp(2 * arg.exact) + 1)
+    return _Value(exact, _slack(min(arg.error + FUNCTION_ULPS * UNIT, 2.0)))
+
+
+def _abs(node: sp.Expr, args: list[_Value], x: Any) -> _Value:
+    return _Value(abs(args[0].exact), args[0].error)
+
+
+def _min_max(node: sp.Expr, args: list[_Value], x: Any) -> _Value:
+    pick = min if isinstance(node, sp.Min) else max
+    exact = iv.mpf([pick(a.exact.a for a in args), pick(a.exact.b for a in args)])
+    return _Value(exact, max(a.error for a in args))
+
+
+_FUNCTIONS: tuple[tuple[type | tuple[type, ...], Callable[[sp.Expr, list[_Value], Any], _Value]], ...] = (
+    (sp.exp, lambda node, args, x: _exp(args[0], node, x)),
+    (sp.log, lambda node, args, x: _log(args[0], node, x)),
+    ((sp.sin, sp.cos), _sin_cos),
+    (sp.tanh, _tanh),
+    (sp.Abs, _abs),
+    ((sp.Min, sp.Max), _min_max),
+)
+"""How each function's value and error are bounded from its arguments'."""
 
 
 def _add(args: list[_Value]) -> _Value:

@@ -16,7 +16,6 @@ from smol_dsl.language.symbolic import T
 
 _UNARY: dict[type, Callable[[jnp.ndarray], jnp.ndarray]] = {
     sp.exp: jnp.exp,
-    sp.log: jnp.log,
     sp.sin: jnp.sin,
     sp.cos: jnp.cos,
     sp.tanh: jnp.tanh,
@@ -28,45 +27,79 @@ _UNARY: dict[type, Callable[[jnp.ndarray], jnp.ndarray]] = {
 def to_jax(expr: sp.Expr) -> Callable[[jnp.ndarray], jnp.ndarray]:
     """Return f(t) evaluating `expr` (a sympy expression in T) with jax.numpy."""
 
-    def evaluate(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
-        if node == T:
-            return t
-        if node.is_Number or node.is_NumberSymbol or (node.is_number and not node.free_symbols):
-            return jnp.asarray(float(sp.N(node, 20)), dtype=t.dtype)
-        if node.is_Add:
-            total = evaluate(node.args[0], t)
-            for arg in node.args[1:]:
-                total = total + evaluate(arg, t)
-            return total
-        if node.is_Mul:
-            product = evaluate(node.args[0], t)
-            for arg in node.args[1:]:
-                product = product * evaluate(arg, t)
-            return product
-        if node.is_Pow:
-            base, exponent = node.args
-            if exponent.is_Integer:  # lax.integer_pow: repeated squaring, any sign of base
-                return jnp.power(evaluate(base, t), int(exponent))
-            # Verification proved the base >= 0 over the segment; float rounding at the
-            # segment's ends may still make it -1e-9, so clamp rather than return NaN.
-            clamped = jnp.maximum(evaluate(base, t), 0.0)
-            if exponent == sp.Rational(1, 2):
-                return jnp.sqrt(clamped)
-            return jnp.power(clamped, evaluate(exponent, t))
-        if isinstance(node, sp.log):  # argument proved > 0; clamp away rounding below it
-            return jnp.log(jnp.maximum(evaluate(node.args[0], t), jnp.finfo(t.dtype).tiny))
-        if isinstance(node, sp.Min):
-            return _fold(jnp.minimum, [evaluate(a, t) for a in node.args])
-        if isinstance(node, sp.Max):
-            return _fold(jnp.maximum, [evaluate(a, t) for a in node.args])
-        if type(node) in _UNARY:
-            return _UNARY[type(node)](evaluate(node.args[0], t))
-        raise TypeError(f"cannot translate {node!r} ({type(node).__name__}) to JAX")
-
     def function(t: jnp.ndarray) -> jnp.ndarray:
-        return evaluate(expr, t)
+        return _evaluate(expr, t)
 
     return function
+
+
+def _evaluate(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+    if node == T:
+        return t
+    if node.is_Number or node.is_NumberSymbol or (node.is_number and not node.free_symbols):
+        return jnp.asarray(float(sp.N(node, 20)), dtype=t.dtype)
+    for kind, translate in _TRANSLATIONS:
+        if isinstance(node, kind):
+            return translate(node, t)
+    raise TypeError(f"cannot translate {node!r} ({type(node).__name__}) to JAX")
+
+
+def _add(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+    total = _evaluate(node.args[0], t)
+    for arg in node.args[1:]:
+        total = total + _evaluate(arg, t)
+    return total
+
+
+def _mul(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+    product = _evaluate(node.args[0], t)
+    for arg in node.args[1:]:
+        product = product * _evaluate(arg, t)
+    return product
+
+
+def _pow(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+    base, exponent = node.args
+    if exponent.is_Integer:  # lax.integer_pow: repeated squaring, any sign of base
+        return jnp.power(_evaluate(base, t), int(exponent))
+    # Verification proved the base >= 0 over the segment; float rounding at the
+    # segment's ends may still make it -1e-9, so clamp rather than return NaN.
+    clamped = jnp.maximum(_evaluate(base, t), 0.0)
+    if exponent == sp.Rational(1, 2):
+        return jnp.sqrt(clamped)
+    return jnp.power(clamped, _evaluate(exponent, t))
+
+
+def _log(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+    # the argument is proved > 0; clamp away rounding below it
+    return jnp.log(jnp.maximum(_evaluate(node.args[0], t), jnp.finfo(t.dtype).tiny))
+
+
+def _min(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+    return _fold(jnp.minimum, [_evaluate(a, t) for a in node.args])
+
+
+def _max(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+    return _fold(jnp.maximum, [_evaluate(a, t) for a in node.args])
+
+
+def _applied(function: Callable[[jnp.ndarray], jnp.ndarray]) -> Callable[[sp.Expr, jnp.ndarray], jnp.ndarray]:
+    def translate(node: sp.Expr, t: jnp.ndarray) -> jnp.ndarray:
+        return function(_evaluate(node.args[0], t))
+
+    return translate
+
+
+_TRANSLATIONS: tuple[tuple[type, Callable[[sp.Expr, jnp.ndarray], jnp.ndarray]], ...] = (
+    (sp.Add, _add),
+    (sp.Mul, _mul),
+    (sp.Pow, _pow),
+    (sp.log, _log),
+    (sp.Min, _min),
+    (sp.Max, _max),
+    *((kind, _applied(function)) for kind, function in _UNARY.items()),
+)
+"""How each kind of node (other than t and constants) is evaluated, in the order they are tried."""
 
 
 def _fold(op: Callable[[jnp.ndarray, jnp.ndarray], jnp.ndarray], values: list[jnp.ndarray]) -> jnp.ndarray:

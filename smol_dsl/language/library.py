@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from importlib.resources import files
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parents[1]
@@ -19,8 +20,6 @@ def library_dir() -> Path:
     if here.is_dir():
         return here
     try:
-        from importlib.resources import files
-
         found = Path(str(files("smol_dsl.schedules")))
         if found.is_dir():
             return found

@@ -19,7 +19,7 @@ import math
 import operator
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from itertools import pairwise
 from typing import Any, Literal
@@ -38,6 +38,8 @@ ENCLOSURE_PIECES = 64
 """Sub-intervals of the first enclosure."""
 REFINEMENTS = 256
 """Bisections spent tightening each side of an enclosure."""
+RETRY_SECONDS = 0.05
+"""CPU time between alarms after a budget has run out, until one stops the method."""
 SLOPE_ROUNDING = 1e-12
 """Relative slack for the sign of a slope from interval arithmetic (a few ulps of rounding)."""
 
@@ -54,22 +56,29 @@ def time_limit(seconds: float) -> Iterator[None]:
     only; elsewhere no limit).
 
     CPU time, not wall-clock time, so that a busy machine gives the same verdicts as an idle
-    one: sympy's methods are CPU-bound.
+    one: sympy's methods are CPU-bound. Python ignores an exception raised while the signal
+    interrupts a garbage-collector or weak-reference callback, so the alarm fires again every
+    RETRY_SECONDS until the exception reaches the code under the limit.
     """
     if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
         yield
         return
+    armed = True
 
     def on_alarm(signum: int, frame: Any) -> None:
-        raise VerificationTimeoutError
+        if armed:
+            raise VerificationTimeoutError
 
     previous = signal.signal(signal.SIGPROF, on_alarm)
-    signal.setitimer(signal.ITIMER_PROF, seconds)
+    signal.setitimer(signal.ITIMER_PROF, seconds, RETRY_SECONDS)
     try:
         yield
     finally:
-        signal.setitimer(signal.ITIMER_PROF, 0)
-        signal.signal(signal.SIGPROF, previous)
+        try:
+            armed = False
+        finally:  # even if the alarm raised just before `armed` was cleared
+            signal.setitimer(signal.ITIMER_PROF, 0)
+            signal.signal(signal.SIGPROF, previous)
 
 
 _SYMPY_FAILURES = (
@@ -138,6 +147,18 @@ def _iv_value(expr: sp.Expr, x: Any) -> Any:
     """expr evaluated by rigorous interval arithmetic (mpmath.iv, outward rounding) for t in x."""
     if expr == T:
         return x
+    constant = _iv_constant(expr)
+    if constant is not None:
+        return constant
+    args = [_iv_value(arg, x) for arg in expr.args]
+    for kind, apply in _IV_OPERATIONS:
+        if isinstance(expr, kind):
+            return apply(expr, args)
+    raise _NoEnclosureError(type(expr).__name__)
+
+
+def _iv_constant(expr: sp.Expr) -> Any | None:
+    """The interval of a number the language writes (a rational, a float, pi, e); None otherwise."""
     if expr.is_Rational:
         return _iv_exact(expr)
     if expr.is_Float:
@@ -146,36 +167,39 @@ def _iv_value(expr: sp.Expr, x: Any) -> Any:
         return iv.pi
     if expr == sp.E:
         return iv.e
-    args = [_iv_value(arg, x) for arg in expr.args]
-    if expr.is_Add:
-        return functools.reduce(operator.add, args)
-    if expr.is_Mul:
-        return functools.reduce(operator.mul, args)
-    if expr.is_Pow:
-        base, exponent = args
-        power = expr.args[1]
-        if power.is_Integer:
-            n = int(power)
-            return base**n if n >= 0 else 1 / base**-n
-        if power == sp.Rational(1, 2):
-            return iv.sqrt(base)
-        return iv.exp(exponent * iv.log(base))
-    if isinstance(expr, sp.exp):
-        return iv.exp(args[0])
-    if isinstance(expr, sp.log):
-        return iv.log(args[0])
-    if isinstance(expr, sp.sin):
-        return iv.sin(args[0])
-    if isinstance(expr, sp.cos):
-        return iv.cos(args[0])
-    if isinstance(expr, sp.tanh):  # x appears once, so the enclosure stays tight
-        return 1 - 2 / (iv.exp(2 * args[0]) + 1)
-    if isinstance(expr, sp.Abs):
-        return abs(args[0])
-    if isinstance(expr, (sp.Min, sp.Max)):
-        pick = min if isinstance(expr, sp.Min) else max
-        return iv.mpf([pick(a.a for a in args), pick(a.b for a in args)])
-    raise _NoEnclosureError(type(expr).__name__)
+    return None
+
+
+def _iv_power(expr: sp.Expr, args: list[Any]) -> Any:
+    base, exponent = args
+    power = expr.args[1]
+    if power.is_Integer:
+        n = int(power)
+        return base**n if n >= 0 else 1 / base**-n
+    if power == sp.Rational(1, 2):
+        return iv.sqrt(base)
+    return iv.exp(exponent * iv.log(base))
+
+
+def _iv_min_max(expr: sp.Expr, args: list[Any]) -> Any:
+    pick = min if isinstance(expr, sp.Min) else max
+    return iv.mpf([pick(a.a for a in args), pick(a.b for a in args)])
+
+
+_IV_OPERATIONS: tuple[tuple[type | tuple[type, ...], Callable[[sp.Expr, list[Any]], Any]], ...] = (
+    (sp.Add, lambda expr, args: functools.reduce(operator.add, args)),
+    (sp.Mul, lambda expr, args: functools.reduce(operator.mul, args)),
+    (sp.Pow, _iv_power),
+    (sp.exp, lambda expr, args: iv.exp(args[0])),
+    (sp.log, lambda expr, args: iv.log(args[0])),
+    (sp.sin, lambda expr, args: iv.sin(args[0])),
+    (sp.cos, lambda expr, args: iv.cos(args[0])),
+    # tanh(x) = 1 - 2 / (exp(2x) + 1): x appears once, so the enclosure stays tight
+    (sp.tanh, lambda expr, args: 1 - 2 / (iv.exp(2 * args[0]) + 1)),
+    (sp.Abs, lambda expr, args: abs(args[0])),
+    ((sp.Min, sp.Max), _iv_min_max),
+)
+"""Each operation of the language on intervals, from its arguments' intervals."""
 
 
 def interval_value(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[float, float] | None:
@@ -254,30 +278,42 @@ def extrema(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Extrema | No
 
 def slope_sign(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Monotone:
     """'increasing' / 'decreasing' (non-strict) or 'constant' where proven, 'neither' where
-    the slope is shown to take both signs, 'unknown' where nothing could be decided."""
+    the slope is shown to take both signs, 'unknown' where nothing could be decided.
+
+    Interval arithmetic on the derivative is cheap when it decides; otherwise sympy is
+    asked, and last a witness of each sign can prove that the piece is not monotone.
+    """
     if not expr.has(T):
         return "constant"
     slope = sp.diff(expr, T)
     if slope.is_zero or simplified(slope) == 0:
         return "constant"
-    # Interval arithmetic on the derivative is cheap when it decides; otherwise ask
-    # sympy, which can also prove that a piece is not monotone.
+    return _enclosed_sign(slope, start, end) or _sympy_sign(expr, start, end) or _witnessed_sign(slope, start, end)
+
+
+def _enclosed_sign(slope: sp.Expr, start: sp.Rational, end: sp.Rational) -> Monotone | None:
+    """The sign of the slope from an interval enclosure of it, where it decides."""
     try:
         with time_limit(ENCLOSURE_SECONDS):
             enclosed = enclosure(slope, start, end)
     except _SYMPY_FAILURES:
         enclosed = None
-    if enclosed is not None:
-        # Outward rounding widens an enclosure by a few ulps, so a slope that is exactly 0
-        # somewhere (at the end of an ease, say) would never be proven >= 0; accept a sign
-        # up to SLOPE_ROUNDING relative to the slope's scale.
-        slack = SLOPE_ROUNDING * max(1.0, abs(enclosed[0]), abs(enclosed[1]))
-        if enclosed[0] >= -slack:
-            return "increasing"
-        if enclosed[1] <= slack:
-            return "decreasing"
-    # sympy on the open interval (a derivative may be infinite at an end, as for sqrt);
-    # alpha is continuous on the closed interval, so that decides it there too.
+    if enclosed is None:
+        return None
+    # Outward rounding widens an enclosure by a few ulps, so a slope that is exactly 0
+    # somewhere (at the end of an ease, say) would never be proven >= 0; accept a sign
+    # up to SLOPE_ROUNDING relative to the slope's scale.
+    slack = SLOPE_ROUNDING * max(1.0, abs(enclosed[0]), abs(enclosed[1]))
+    if enclosed[0] >= -slack:
+        return "increasing"
+    if enclosed[1] <= slack:
+        return "decreasing"
+    return None
+
+
+def _sympy_sign(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Monotone | None:
+    """sympy's proof of monotonicity on the open interval (a derivative may be infinite at an
+    end, as for sqrt); the value is continuous on the closed interval, so that decides it there too."""
     interval = sp.Interval.open(start, end)
     try:
         with time_limit(EXACT_SECONDS):
@@ -287,7 +323,11 @@ def slope_sign(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> Monotone:
                 return "decreasing"
     except _SYMPY_FAILURES:
         pass
-    # Not monotone is proven by a witness: the slope, evaluated exactly, takes both signs.
+    return None
+
+
+def _witnessed_sign(slope: sp.Expr, start: sp.Rational, end: sp.Rational) -> Monotone:
+    """'neither' where the slope, evaluated exactly at 31 interior points, takes both signs."""
     signs = set()
     for k in range(1, 32):
         value = real(slope.subs(T, start + (end - start) * sp.Rational(k, 32)))

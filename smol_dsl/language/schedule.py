@@ -7,6 +7,7 @@ import difflib
 import math
 import os
 from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import replace
 from fractions import Fraction
 from functools import lru_cache
 from pathlib import Path
@@ -15,14 +16,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.language.assembly import parse_program
 from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel, differing_finals
 from smol_dsl.language.compiler import compile_program
 from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
 from smol_dsl.language.symbolic import SymbolicCurve, SymbolicProgram, SymbolicSegment, percent
-from smol_dsl.language.syntax import parse_program
 from smol_dsl.language.verify import Certificate, verify
 
+# JAX is imported inside the methods that evaluate: parsing and checking a schedule never load it.
 if TYPE_CHECKING:
     import jax
     import sympy as sp
@@ -37,8 +39,6 @@ def constant_curve(channel: Channel = GEAR) -> Curve:
     symbolic = program.curves[0]
     certificate = verify(program)[GEAR]
     if channel != GEAR:
-        from dataclasses import replace
-
         symbolic = replace(symbolic, channel=channel)
         certificate = replace(certificate, channel=channel)
     return Curve(symbolic, certificate, _CONSTANT_TEXT, None)
@@ -269,6 +269,7 @@ class Schedule:
         With `num_phases`, alpha is held constant within each of that many equal phases
         (as the runner does); otherwise it follows the smooth curve.
 
+        >>> import smol_dsl
         >>> schedule = smol_dsl.load("smol").as_optax(1000, num_phases=100)
         >>> float(schedule(950))
         1.0

@@ -71,6 +71,8 @@ class SymbolicSegment:
     """The random draws alpha depends on, if any."""
     owner: str = ""
     """How messages name its channel after `segment N`: `` (a file of the gear channel alone) or ` of mass`."""
+    quantity: str = "alpha"
+    """How messages call its channel's value: `alpha` for plain gear, else the channel's name."""
 
     @property
     def kind(self) -> str:

@@ -1,7 +1,9 @@
-"""The typed syntax tree of a `.sched` file, as the parser builds it.
+"""The typed syntax tree of a `.sched` file.
 
-Every node carries the `Span` of the text it came from, so that later stages (symbolic
-compilation and verification) can point at the offending text.
+The parser (`smol_dsl.language.syntax`) turns the text into statements, one node per line;
+program assembly (`smol_dsl.language.assembly`) checks them and collects them into a
+`Program` of channel `Section`s. Every node carries the `Span` of the text it came from, so
+that later stages (symbolic compilation and verification) can point at the offending text.
 """
 
 from __future__ import annotations
@@ -105,6 +107,48 @@ class Final:
 
     value: Expr
     span: Span
+
+
+@dataclass(frozen=True)
+class StringDirective:
+    """`name "..."` or `description "..."`: a file-level directive whose value is a string."""
+
+    key: Literal["name", "description"]
+    value: str
+    """The string, without its quotes."""
+    span: Span
+
+
+@dataclass(frozen=True)
+class Continuous:
+    """`continuous`: the channel's joins must all be continuous."""
+
+    span: Span
+
+
+@dataclass(frozen=True)
+class Targets:
+    """The bracketed target list of a `channel` line, as written."""
+
+    names: tuple[Name, ...]
+    span: Span
+    """The brackets included."""
+
+
+@dataclass(frozen=True)
+class ChannelDecl:
+    """A `channel KIND[TARGETS]` line as written; assembly checks it into a `ChannelLine`."""
+
+    kind: Name
+    targets: Targets | None
+    """None: no brackets."""
+    span: Span
+
+
+Statement = Segment | Let | Bounds | Extinction | Final | StringDirective | Continuous | ChannelDecl
+"""One line of a file, in the parser's output."""
+
+# ---------------------------------------------------------------- the assembled program
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,9 @@ positive.
 
 from __future__ import annotations
 
+import contextlib
 import json
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from itertools import pairwise
 from typing import Any, Literal
@@ -149,7 +151,48 @@ def _fail(message: str, span: Span, hint: str) -> ScheduleError:
     return ScheduleError(message, span=span, hint=hint)
 
 
-def _check_coverage(curve: SymbolicCurve) -> None:
+def verify(program: SymbolicProgram) -> dict[Channel, Certificate]:
+    """Prove the language's rules for every channel of a compiled program, in declared order;
+    raise ScheduleError on the first failure."""
+    return {curve.channel: verify_curve(curve, program.extinction) for curve in program.curves}
+
+
+def verify_curve(curve: SymbolicCurve, extinction: sp.Expr = sp.S.Zero) -> Certificate:
+    """Prove the language's rules for one channel's curve, in the order of docs/language.md
+    section 6; raise ScheduleError on the first failure."""
+    _coverage(curve)  # 1
+    pieces: list[PieceCertificate] = []
+    for segment in curve.segments:
+        own = [_piece(curve, segment, piece) for piece in segment.pieces]  # 2-5 on each piece
+        proven = _SegmentRange.of(own)
+        _above_zero(curve, segment, proven)  # 6
+        _finite_in_float32(curve, segment, proven)  # 7
+        _declared_bounds(curve, segment, proven)  # 8
+        _declared_monotonicity(curve, segment, own, proven)  # 9
+        pieces.extend(own)
+    start_of_tail = tail_start(curve)  # 10
+    joins = _joins(curve)  # 11
+    _declared_continuity(curve, joins)  # 12
+    bounds = None if curve.bounds is None else (float(curve.bounds[0]), float(curve.bounds[1]))
+    return Certificate(
+        minimum=min(p.minimum for p in pieces),
+        maximum=max(p.maximum for p in pieces),
+        tail_start=float(start_of_tail),
+        joins=joins,
+        pieces=tuple(pieces),
+        bounds=bounds,
+        extinction=float(extinction),
+        float32_error=max(p.float32_error for p in pieces),
+        channel=curve.channel,
+        final=float(curve.final),
+    )
+
+
+# ---------------------------------------------------------------- 1. coverage
+
+
+def _coverage(curve: SymbolicCurve) -> None:
+    """The segments start at 0, end at 1, and meet without gaps or overlaps."""
     segments = curve.segments
     of = f" of {curve.channel.name}" if curve.named else ""
     inside = f" in {curve.channel.name}" if curve.named else ""
@@ -186,8 +229,227 @@ def _check_coverage(curve: SymbolicCurve) -> None:
         )
 
 
+# ---------------------------------------------------------------- 2-5. each piece
+
+
+def _piece(curve: SymbolicCurve, segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
+    """A piece's extrema and monotonicity, from its shape's own proof or from steps 2-5, and
+    the bound on its float32 error (the evidence of step 7)."""
+    found, monotone = segment.shape.prove(segment, piece) or _prove(curve, segment, piece)
+    error = segment.shape.float32_error(segment, piece, found.low, found.high)
+    return PieceCertificate(
+        segment.index + 1,
+        piece.label,
+        float(piece.start),
+        float(piece.end),
+        found.low,
+        found.high,
+        monotone,
+        found.exact,
+        error,
+    )
+
+
+def _prove(curve: SymbolicCurve, segment: SymbolicSegment, piece: Piece) -> tuple[Extrema, Monotone]:
+    """Steps 2-5 by sympy, or interval arithmetic where sympy fails, within their time budgets."""
+    with _budget(segment):
+        _domain(curve, segment, piece)
+        expr = _simplification(piece)
+        found = _range(curve, segment, piece, expr)
+        return found, _monotonicity(piece, expr)
+
+
+@contextlib.contextmanager
+def _budget(segment: SymbolicSegment) -> Iterator[None]:
+    """A proof that runs out of time, or of stack, as a located error."""
+    where = segment.describe()
+    try:
+        yield
+    except VerificationTimeoutError:
+        raise _fail(
+            f"could not verify {where} within the time limit",
+            segment.span,
+            "sympy could not bound this expression quickly; simplify it or split the segment",
+        ) from None
+    except RecursionError:
+        raise _fail(f"{where} is too deeply nested to verify", segment.span, "simplify the expression") from None
+
+
+def _domain(curve: SymbolicCurve, segment: SymbolicSegment, piece: Piece) -> None:
+    """2. The value is real on the piece's whole closed interval, on the expression as written."""
+    violation = domain_violation(piece.expr, piece.start, piece.end)
+    if violation is not None:
+        raise _fail(
+            f"{curve.quantity} is not real everywhere on {segment.describe()}: {violation}",
+            segment.span,
+            "keep square roots and powers of non-negative values, logarithms of positive values, "
+            "and divisions away from zero, over the whole segment",
+        )
+
+
+def _simplification(piece: Piece) -> sp.Expr:
+    """3. The piece as sympy simplifies it, where that is no more complex: what steps 4 and 5 prove."""
+    return simplified(piece.expr)
+
+
+def _range(curve: SymbolicCurve, segment: SymbolicSegment, piece: Piece, expr: sp.Expr) -> Extrema:
+    """4. The exact minimum and maximum, or an interval enclosure; finite and real."""
+    found = extrema(expr, piece.start, piece.end)
+    if found is None:
+        raise _fail(
+            f"{curve.quantity} is not finite and real everywhere on {segment.describe()}",
+            segment.span,
+            "check for a division by zero, or a log or square root of a negative number, inside the segment",
+        )
+    return found
+
+
+def _monotonicity(piece: Piece, expr: sp.Expr) -> Monotone:
+    """5. From the sign of the derivative: proven, refuted by a witness, or unknown."""
+    return slope_sign(expr, piece.start, piece.end)
+
+
+# ---------------------------------------------------------------- 6-9. each segment
+
+
+@dataclass(frozen=True)
+class _SegmentRange:
+    """A segment's proven range over its pieces, and how messages word it: an extremum that is
+    only an interval-arithmetic bound is said to be one, not claimed to be reached."""
+
+    low: float
+    high: float
+    error: float
+    """The largest float32 error bound of its pieces."""
+    goes_down: str
+    reaches: str
+    loose: str
+    """What a hint adds where an extremum is only a bound."""
+
+    @classmethod
+    def of(cls, pieces: list[PieceCertificate]) -> _SegmentRange:
+        lowest = min(pieces, key=lambda p: p.minimum)
+        highest = max(pieces, key=lambda p: p.maximum)
+        loose = (
+            ""
+            if lowest.exact and highest.exact
+            else (
+                "; its exact extrema could not be found, and the interval-arithmetic bound is not tight enough: "
+                "simplify the expression or split the segment"
+            )
+        )
+        return cls(
+            low=lowest.minimum,
+            high=highest.maximum,
+            error=max(p.float32_error for p in pieces),
+            goes_down="goes down to" if lowest.exact else "could not be shown to stay above its bound of",
+            reaches="reaches" if highest.exact else "could not be shown to stay below its bound of",
+            loose=loose,
+        )
+
+
+def _scales(curve: SymbolicCurve) -> str:
+    """What the channel's factor scales, for hints: `alpha scales the actuators' gear` for plain
+    gear (the paper's name for it), else in the channel's own words."""
+    if not curve.named:
+        return "alpha scales the actuators' gear"
+    return f"{curve.channel.name} scales {CHANNEL_KINDS[curve.channel.kind].scales}"
+
+
+def _above_zero(curve: SymbolicCurve, segment: SymbolicSegment, proven: _SegmentRange) -> None:
+    """6. The minimum is strictly positive."""
+    if not proven.low > 0:
+        raise _fail(
+            f"{curve.quantity} must stay above 0, but {segment.describe()} {proven.goes_down} {proven.low:.6g}",
+            segment.span,
+            f"{_scales(curve)}; 0 or less {AT_ZERO[curve.channel.kind]}" + proven.loose,
+        )
+
+
+def _finite_in_float32(curve: SymbolicCurve, segment: SymbolicSegment, proven: _SegmentRange) -> None:
+    """7. The value minus its float32 error stays positive, and its range lies within float32's
+    safe range (each piece's error bound is its shape's `float32_error`)."""
+    where, q, low, high, error = segment.describe(), curve.quantity, proven.low, proven.high, proven.error
+    if not low - error > 0:
+        raise _fail(
+            f"{q} must stay above 0, but in float32 {where} may go down to {low - error:.3g} "
+            f"(exactly it goes down to {low:.6g}, with rounding errors up to {error:.3g})",
+            segment.span,
+            "the expression loses too much precision in 32-bit floats: simplify it or rescale its parts",
+        )
+    if low < SAFE_MIN:
+        raise _fail(
+            f"{where} {proven.goes_down} {q} = {low:.3g}, too small for float32",
+            segment.span,
+            f"{_scales(curve)}; a value this small is 0 in 32-bit floats",
+        )
+    if high + error > SAFE_MAX:
+        raise _fail(
+            f"{where} {proven.reaches} {q} = {high:.3g}, beyond float32's safe range (2**120, about 1.3e36)",
+            segment.span,
+            f"use a modest {q}",
+        )
+
+
+def _declared_bounds(curve: SymbolicCurve, segment: SymbolicSegment, proven: _SegmentRange) -> None:
+    """8. LO <= minimum and maximum <= HI, where the channel declares `bounds LO .. HI`."""
+    if curve.bounds is None:
+        return
+    where, q, low, high = segment.describe(), curve.quantity, proven.low, proven.high
+    lo, hi, _ = curve.bounds
+    lo_f, hi_f = float(lo), float(hi)
+    declared = f"`bounds {number_text(lo)} .. {number_text(hi)}`"
+    if low < lo_f:
+        raise _fail(
+            f"{where} {proven.goes_down} {q} = {low:.6g}, {lo_f - low:.6g} below the declared bound {lo_f:.6g}",
+            segment.span,
+            f"raise the segment's values, or widen {declared}" + proven.loose,
+        )
+    if high > hi_f:
+        raise _fail(
+            f"{where} {proven.reaches} {q} = {high:.6g}, {high - hi_f:.6g} above the declared bound {hi_f:.6g}",
+            segment.span,
+            f"lower the segment's values, or widen {declared}" + proven.loose,
+        )
+
+
+def _declared_monotonicity(
+    curve: SymbolicCurve, segment: SymbolicSegment, pieces: list[PieceCertificate], proven: _SegmentRange
+) -> None:
+    """9. Every piece of a segment declared `increasing` or `decreasing` is constant or goes that way."""
+    if segment.monotone is None:
+        return
+    broken = [p for p in pieces if p.monotone not in {"constant", segment.monotone}]
+    if not broken:
+        return
+    where = segment.describe()
+    if all(p.monotone == "unknown" for p in broken):
+        raise _fail(
+            f"could not prove that {where} is {segment.monotone}",
+            segment.span,
+            "neither sympy nor interval arithmetic could decide the sign of the derivative; "
+            f"simplify the expression, split the segment, or remove `{segment.monotone}`",
+        )
+    if any(p.monotone == "random" for p in broken):
+        detail = "a random segment is not monotone"
+    else:
+        detail = (
+            f"{curve.quantity} goes from {number_text(_value_at(segment, 'start'))} at {percent(segment.start)} to "
+            f"{number_text(_value_at(segment, 'end'))} at {percent(segment.end)}, ranging over "
+            f"{proven.low:.6g} .. {proven.high:.6g}"
+        )
+    raise _fail(
+        f"{where} is declared {segment.monotone} but is not: {detail}",
+        segment.span,
+        f"fix the values, or remove `{segment.monotone}` if the shape is intended",
+    )
+
+
+# ---------------------------------------------------------------- 10-12. the whole curve
+
+
 def tail_start(curve: SymbolicCurve) -> sp.Rational:
-    """Where the curve becomes identically its final value for good; raise if that leaves
+    """10. Where the curve becomes identically its final value for good; raise if that leaves
     under MIN_TAIL."""
     segments = curve.segments
     start = sp.Integer(1)
@@ -227,6 +489,8 @@ def _value_at(segment: SymbolicSegment, where: Literal["start", "end"]) -> sp.Ex
 
 
 def _joins(curve: SymbolicCurve) -> tuple[JoinCertificate, ...]:
+    """11. The jump at each boundary, continuous where sympy proves it exactly 0; a join next
+    to a random segment is random."""
     joins = []
     for before, after in pairwise(curve.segments):
         if any(s.draws is not None and not s.shape.is_constant(s, curve.final) for s in (before, after)):
@@ -237,185 +501,16 @@ def _joins(curve: SymbolicCurve) -> tuple[JoinCertificate, ...]:
     return tuple(joins)
 
 
-def _verify_piece(curve: SymbolicCurve, segment: SymbolicSegment, piece: Piece) -> PieceCertificate:
-    found, monotone = segment.shape.prove(segment, piece) or _prove(curve, segment, piece)
-    error = segment.shape.float32_error(segment, piece, found.low, found.high)
-    return PieceCertificate(
-        segment.index + 1,
-        piece.label,
-        float(piece.start),
-        float(piece.end),
-        found.low,
-        found.high,
-        monotone,
-        found.exact,
-        error,
-    )
-
-
-def _prove(curve: SymbolicCurve, segment: SymbolicSegment, piece: Piece) -> tuple[Extrema, Monotone]:
-    """Extrema and monotonicity of a piece by sympy, or interval arithmetic where sympy fails."""
-    where = segment.describe()
-    try:
-        violation = domain_violation(piece.expr, piece.start, piece.end)
-        expr = simplified(piece.expr)
-        found = extrema(expr, piece.start, piece.end) if violation is None else None
-        monotone = slope_sign(expr, piece.start, piece.end) if found is not None else "unknown"
-    except VerificationTimeoutError:
-        raise _fail(
-            f"could not verify {where} within the time limit",
-            segment.span,
-            "sympy could not bound this expression quickly; simplify it or split the segment",
-        ) from None
-    except RecursionError:
-        raise _fail(f"{where} is too deeply nested to verify", segment.span, "simplify the expression") from None
-    if violation is not None:
-        raise _fail(
-            f"{curve.quantity} is not real everywhere on {where}: {violation}",
-            segment.span,
-            "keep square roots and powers of non-negative values, logarithms of positive values, "
-            "and divisions away from zero, over the whole segment",
-        )
-    if found is None:
-        raise _fail(
-            f"{curve.quantity} is not finite and real everywhere on {where}",
-            segment.span,
-            "check for a division by zero, or a log or square root of a negative number, inside the segment",
-        )
-    return found, monotone
-
-
-def _scales(curve: SymbolicCurve) -> str:
-    """`alpha scales the actuators' gear` (plain gear alone, as ever), else the channel's words."""
-    if not curve.named:
-        return "alpha scales the actuators' gear"
-    return f"{curve.channel.name} scales {CHANNEL_KINDS[curve.channel.kind].scales}"
-
-
-def _check_rules(curve: SymbolicCurve, segment: SymbolicSegment, pieces: list[PieceCertificate]) -> None:
-    where = segment.describe()
-    q = curve.quantity
-    lowest = min(pieces, key=lambda p: p.minimum)
-    highest = max(pieces, key=lambda p: p.maximum)
-    low, high = lowest.minimum, highest.maximum
-    # Where an extremum is only an interval-arithmetic bound, say so rather than claim
-    # that the value reaches it.
-    goes_down = "goes down to" if lowest.exact else "could not be shown to stay above its bound of"
-    reaches = "reaches" if highest.exact else "could not be shown to stay below its bound of"
-    loose = (
-        ""
-        if lowest.exact and highest.exact
-        else (
-            "; its exact extrema could not be found, and the interval-arithmetic bound is not tight enough: "
-            "simplify the expression or split the segment"
-        )
-    )
-    error = max(p.float32_error for p in pieces)
-    if low > 0 and not low - error > 0:
-        raise _fail(
-            f"{q} must stay above 0, but in float32 {where} may go down to {low - error:.3g} "
-            f"(exactly it goes down to {low:.6g}, with rounding errors up to {error:.3g})",
-            segment.span,
-            "the expression loses too much precision in 32-bit floats: simplify it or rescale its parts",
-        )
-    if low > 0 and low < SAFE_MIN:
-        raise _fail(
-            f"{where} {goes_down} {q} = {low:.3g}, too small for float32",
-            segment.span,
-            f"{_scales(curve)}; a value this small is 0 in 32-bit floats",
-        )
-    if not low > 0:
-        raise _fail(
-            f"{q} must stay above 0, but {where} {goes_down} {low:.6g}",
-            segment.span,
-            f"{_scales(curve)}; 0 or less {AT_ZERO[curve.channel.kind]}" + loose,
-        )
-    if high + error > SAFE_MAX:
-        raise _fail(
-            f"{where} {reaches} {q} = {high:.3g}, beyond float32's safe range (2**120, about 1.3e36)",
-            segment.span,
-            f"use a modest {q}",
-        )
-    if curve.bounds is not None:
-        lo, hi, _ = curve.bounds
-        lo_f, hi_f = float(lo), float(hi)
-        if low < lo_f:
+def _declared_continuity(curve: SymbolicCurve, joins: tuple[JoinCertificate, ...]) -> None:
+    """12. Every join is continuous, where the channel declares `continuous`."""
+    if not curve.continuous:
+        return
+    subject = f"{curve.channel.name} is" if curve.named else "the schedule is"
+    for join, after in zip(joins, curve.segments[1:]):
+        if not join.continuous:
+            jump = "a random value" if join.jump is None else f"a jump of {join.jump:+.6g}"
             raise _fail(
-                f"{where} {goes_down} {q} = {low:.6g}, {lo_f - low:.6g} below the declared bound {lo_f:.6g}",
-                segment.span,
-                f"raise the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`" + loose,
+                f"{subject} declared continuous but has {jump} at {percent(join.position)}",
+                after.span,
+                "make each segment start at the value where the previous one ends, or drop `continuous`",
             )
-        if high > hi_f:
-            raise _fail(
-                f"{where} {reaches} {q} = {high:.6g}, {high - hi_f:.6g} above the declared bound {hi_f:.6g}",
-                segment.span,
-                f"lower the segment's values, or widen `bounds {number_text(lo)} .. {number_text(hi)}`" + loose,
-            )
-    if segment.monotone is not None:
-        allowed = {"constant", segment.monotone}
-        broken = [p for p in pieces if p.monotone not in allowed]
-        if broken:
-            first_value = _value_at(segment, "start")
-            last_value = _value_at(segment, "end")
-            if all(p.monotone == "unknown" for p in broken):
-                raise _fail(
-                    f"could not prove that {where} is {segment.monotone}",
-                    segment.span,
-                    "neither sympy nor interval arithmetic could decide the sign of the derivative; "
-                    f"simplify the expression, split the segment, or remove `{segment.monotone}`",
-                )
-            if any(p.monotone == "random" for p in broken):
-                detail = "a random segment is not monotone"
-            else:
-                detail = (
-                    f"{q} goes from {number_text(first_value)} at {percent(segment.start)} to "
-                    f"{number_text(last_value)} at {percent(segment.end)}, ranging over "
-                    f"{low:.6g} .. {high:.6g}"
-                )
-            raise _fail(
-                f"{where} is declared {segment.monotone} but is not: {detail}",
-                segment.span,
-                f"fix the values, or remove `{segment.monotone}` if the shape is intended",
-            )
-
-
-def verify_curve(curve: SymbolicCurve, extinction: sp.Expr = sp.S.Zero) -> Certificate:
-    """Prove the language's rules for one channel's curve; raise ScheduleError on the first failure."""
-    segments = curve.segments
-    _check_coverage(curve)
-    pieces: list[PieceCertificate] = []
-    for segment in segments:
-        own = [_verify_piece(curve, segment, piece) for piece in segment.pieces]
-        _check_rules(curve, segment, own)
-        pieces.extend(own)
-    start_of_tail = tail_start(curve)
-    joins = _joins(curve)
-    if curve.continuous:
-        subject = f"{curve.channel.name} is" if curve.named else "the schedule is"
-        for join, after in zip(joins, segments[1:]):
-            if not join.continuous:
-                jump = "a random value" if join.jump is None else f"a jump of {join.jump:+.6g}"
-                raise _fail(
-                    f"{subject} declared continuous but has {jump} at {percent(join.position)}",
-                    after.span,
-                    "make each segment start at the value where the previous one ends, or drop `continuous`",
-                )
-    bounds = None if curve.bounds is None else (float(curve.bounds[0]), float(curve.bounds[1]))
-    return Certificate(
-        minimum=min(p.minimum for p in pieces),
-        maximum=max(p.maximum for p in pieces),
-        tail_start=float(start_of_tail),
-        joins=joins,
-        pieces=tuple(pieces),
-        bounds=bounds,
-        extinction=float(extinction),
-        float32_error=max(p.float32_error for p in pieces),
-        channel=curve.channel,
-        final=float(curve.final),
-    )
-
-
-def verify(program: SymbolicProgram) -> dict[Channel, Certificate]:
-    """Prove the language's rules for every channel of a compiled program, in declared order;
-    raise ScheduleError on the first failure."""
-    return {curve.channel: verify_curve(curve, program.extinction) for curve in program.curves}

@@ -4,7 +4,7 @@ A unit (a `Shape` subclass, one module each) owns its keyword, its values' check
 pieces, its proof hooks, its JAX evaluation and its line in the docs; its grammar rule is
 `KEYWORD_shape` in sched.lark. Everything else that lists shapes is derived from here: the
 `shape` alternatives of the grammar and its reserved words (`smol_dsl.language.grammar`), the
-hints for syntax errors (`smol_dsl.language.syntax`) and the docs' table of shapes.
+hints for syntax errors (`smol_dsl.language.hints`) and the docs' table of shapes.
 
 Adding a shape given by a formula is one unit plus one grammar rule:
 
@@ -27,7 +27,7 @@ import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from smol_dsl.language.shapes.base import Compiled, Drawn, Evaluation, Formula, Line, Shape
+from smol_dsl.language.shapes.base import Compiled, Drawn, Evaluation, Formula, Line, SegmentContext, Shape
 from smol_dsl.language.shapes.bell import Bell
 from smol_dsl.language.shapes.constant import Constant
 from smol_dsl.language.shapes.expression import Expression
@@ -42,6 +42,7 @@ __all__ = [
     "Evaluation",
     "Formula",
     "Line",
+    "SegmentContext",
     "Shape",
     "keywords",
     "register",

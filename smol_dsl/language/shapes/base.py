@@ -1,4 +1,5 @@
-"""What a shape's unit is: the `Shape` base class, and what it hands the compiler and `Schedule`.
+"""What a shape's unit is: the `Shape` base class, the `SegmentContext` the compiler hands it,
+and what it hands the compiler and `Schedule` back.
 
 A unit owns everything about one kind of segment shape: its keyword, its values' checks and
 their error messages (`compile`, from the values of its grammar rule to exact sympy pieces),
@@ -17,13 +18,53 @@ import sympy as sp
 
 from smol_dsl.language.float32 import UNIT, located_float32_error
 from smol_dsl.language.prover import Extrema, Monotone, is_zero
-from smol_dsl.language.symbolic import Draws, Piece, SymbolicSegment
+from smol_dsl.language.symbolic import Draws, Piece, SymbolicSegment, T
 
 if TYPE_CHECKING:
     import jax
 
+    from smol_dsl.errors import Span
     from smol_dsl.language import tree
-    from smol_dsl.language.compiler import SegmentContext
+    from smol_dsl.language.expressions import Scope
+
+
+@dataclass(frozen=True)
+class SegmentContext:
+    """What a shape's unit compiles its segment with: the segment's place in the file and
+    extent, and the constants in scope. Its methods raise located errors that name the segment."""
+
+    index: int
+    start: sp.Rational
+    end: sp.Rational
+    span: Span
+    """The whole segment's text."""
+    scope: Scope
+    owner: str = ""
+    """` of mass` when messages name the segment's channel."""
+    final: sp.Expr = sp.S.One
+    """The channel's final value (what `tail` means)."""
+
+    @property
+    def label(self) -> str:
+        """`segment 3` (`segment 3 of mass`): how messages name the segment."""
+        return f"segment {self.index + 1}{self.owner}"
+
+    @property
+    def u(self) -> sp.Expr:
+        """Progress within the segment, (t - start) / (end - start): 0 at its start, 1 at its end."""
+        return (T - self.start) / (self.end - self.start)
+
+    def value(self, node: tree.Expr, what: str) -> sp.Expr:
+        """A constant real value, e.g. `value(node, "peak")` for "the peak of segment 3"."""
+        return self.scope.constant(node, what=f"the {what} of {self.label}")
+
+    def position(self, node: tree.Expr, what: str) -> sp.Rational:
+        """An exact position in the run (a fraction in [0, 1]), e.g. "the peak position of segment 3"."""
+        return self.scope.position(node, f"the {what} of {self.label}")
+
+    def formula(self, node: tree.Expr) -> sp.Expr:
+        """An expression of `t` (the run's progress) and `u` (the segment's)."""
+        return self.scope.build(node, {"t": T, "u": self.u})
 
 
 @dataclass(frozen=True)
@@ -106,7 +147,9 @@ class Shape:
         """A bound on |float32 alpha - exact alpha| over the piece, whose exact range is [low, high]."""
         if self.float32_ulps is not None:
             return self.float32_ulps * UNIT * max(abs(low), abs(high))
-        return located_float32_error(piece.expr, piece.start, piece.end, where=segment.describe(), span=segment.span)
+        return located_float32_error(
+            piece.expr, piece.start, piece.end, where=segment.describe(), span=segment.span, quantity=segment.quantity
+        )
 
     def is_constant(self, segment: SymbolicSegment, value: sp.Expr) -> bool:
         """Whether the segment is identically `value` (proven exactly): with the channel's final
@@ -120,6 +163,7 @@ class Shape:
     # ------------------------------------------------------------------ evaluation
     def evaluation(self, segment: SymbolicSegment) -> Evaluation:
         """How `Schedule` evaluates the segment (only called before the alpha == 1 tail)."""
+        # jaxify imports JAX: parsing and checking a schedule never load it, evaluating does
         from smol_dsl.language.jaxify import to_jax
 
         if len(segment.pieces) != 1:

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     import jax
 
     from smol_dsl.language import tree
-    from smol_dsl.language.compiler import SegmentContext
+    from smol_dsl.language.shapes.base import SegmentContext
 
 MIN_BELL_WIDTH, MAX_BELL_WIDTH = sp.Rational(1, 2**100), sp.Integer(2**100)
 
@@ -135,7 +135,7 @@ def _jax_bell(params: BellParams, segment_start: float, segment_end: float) -> C
     x(edge) underflows to 0 (a bell far wider than its segment is a parabola). x may overflow to
     inf for a narrow bell, which exp takes to 0; no form divides 0 by 0 or multiplies inf by 0.
     """
-    import jax.numpy as jnp
+    import jax.numpy as jnp  # here, not at the top: checking a schedule never loads JAX
 
     start_value, peak, end_value = float(params.start), float(params.peak), float(params.end)
     peak_at, width = float(params.peak_at), float(params.width)

@@ -8,7 +8,7 @@ from smol_dsl.language.shapes.base import Compiled, Line, Shape
 
 if TYPE_CHECKING:
     from smol_dsl.language import tree
-    from smol_dsl.language.compiler import SegmentContext
+    from smol_dsl.language.shapes.base import SegmentContext
     from smol_dsl.language.symbolic import SymbolicSegment
 
 

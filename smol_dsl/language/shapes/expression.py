@@ -12,7 +12,7 @@ from smol_dsl.language.shapes.base import Compiled, Shape
 
 if TYPE_CHECKING:
     from smol_dsl.language import tree
-    from smol_dsl.language.compiler import SegmentContext
+    from smol_dsl.language.shapes.base import SegmentContext
 
 
 class Expression(Shape):

@@ -19,7 +19,7 @@ from smol_dsl.language.symbolic import MAX_RANDOM_DRAWS, Draws, Piece, SymbolicS
 
 if TYPE_CHECKING:
     from smol_dsl.language import tree
-    from smol_dsl.language.compiler import SegmentContext
+    from smol_dsl.language.shapes.base import SegmentContext
 
 DEFAULT_RANDOM_EVERY = sp.Rational(1, 100)  # "a new alpha every schedule step" (1%)
 

@@ -1,0 +1,46 @@
+"""The prover's time budgets: a method that runs out of CPU time is stopped, always."""
+
+from __future__ import annotations
+
+import gc
+import signal
+import time
+
+import pytest
+
+from smol_dsl.language.prover import VerificationTimeoutError, time_limit
+
+
+def spin(seconds: float) -> None:
+    """Burn `seconds` of this process's CPU time."""
+    end = time.process_time() + seconds
+    while time.process_time() < end:
+        pass
+
+
+def test_a_time_limit_stops_the_code_under_it():
+    started = time.process_time()
+    with pytest.raises(VerificationTimeoutError), time_limit(0.1):
+        spin(5.0)
+    assert time.process_time() - started < 2.0
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_an_alarm_lost_in_a_gc_callback_fires_again():
+    def slow_callback(phase: str, info: dict) -> None:
+        if phase == "start":
+            spin(0.3)  # the alarm fires in here, and Python ignores a gc callback's exception
+
+    handler = signal.getsignal(signal.SIGPROF)
+    gc.callbacks.append(slow_callback)
+    try:
+        started = time.process_time()
+        with pytest.raises(VerificationTimeoutError), time_limit(0.1):
+            gc.collect()
+            spin(5.0)
+    finally:
+        gc.callbacks.remove(slow_callback)
+    assert time.process_time() - started < 2.0
+    spin(0.2)  # no alarm is left once the limit is over
+    assert signal.getsignal(signal.SIGPROF) is handler
+    assert signal.getitimer(signal.ITIMER_PROF) == (0.0, 0.0)
