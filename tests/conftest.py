@@ -2,7 +2,9 @@
 library parsed and verified once, and the Brax tasks the task tests share.
 
 `pytest -m "not slow"` leaves out what compiles Brax physics or trains (the edit loop);
-tests that use a compiling fixture are marked here, the others in their own files.
+tests that use a compiling fixture are marked here, the others in their own files. In that
+run the property and fuzz tests draw a quarter of their examples, the same every run
+(tests/budget.py).
 
 Compile once per session: JAX's persistent compilation cache is on for the test session and
 for every subprocess it starts (the CLI runs of the resume and kill tests inherit the
@@ -31,6 +33,20 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")  # Br
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 
 import smol_dsl
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """A run that leaves the slow tests out is the fast tier: its property and fuzz tests draw
+    a share of their examples (budget.py), the same ones every run (derandomized), so that the
+    edit loop's verdict does not change from one run to the next."""
+    import budget
+    from hypothesis import settings
+
+    budget.fast_tier = "not slow" in (config.getoption("markexpr") or "")
+    if budget.fast_tier:
+        settings.register_profile("fast-tier", derandomize=True)
+        settings.load_profile("fast-tier")
+
 
 COMPILING_FIXTURES = {"small_run", "walker", "cheetah"}
 """Fixtures that build and compile Brax tasks: a test that uses one is `slow`."""

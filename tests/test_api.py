@@ -67,6 +67,7 @@ def test_alpha_scalar_and_array_shapes(library):
     assert float(smol.alpha(7.0)) == 1.0
 
 
+@pytest.mark.slow  # jits and vmaps every bundled schedule
 def test_alpha_is_jittable_and_vmappable(library):
     for schedule in library.values():
         t = jnp.linspace(0, 1, 33)
@@ -103,6 +104,7 @@ def test_phase_alpha_compiles_once_for_every_phase(library):
     np.testing.assert_allclose(values, human.phase_alphas(100), rtol=1e-6)
 
 
+@pytest.mark.slow  # compiles every bundled schedule's phase table at four phase counts
 def test_phase_alpha_is_the_curve_at_the_phase_start(library):
     for schedule in library.values():
         for phases in (7, 10, 100, 128):

@@ -129,6 +129,7 @@ def test_titles_say_what_the_map_shows():
 
 
 # ---------------------------------------------------------------------------- schedule figures and `plot`
+@pytest.mark.slow  # draws 50 schedules
 def test_plot_of_50_schedules_fits_its_legend_without_warnings(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     paths = many_schedules(tmp_path, 50)

@@ -14,6 +14,8 @@ from smol_dsl.runner.engine import Engine, stack_runs
 from smol_dsl.runner.footprint import DeviceMemory, device_memory, fit_sweep, plan_footprint
 from smol_dsl.tasks import make_task, task_sizes
 
+pytestmark = pytest.mark.slow  # every estimate starts from Brax tasks sized by tracing them
+
 PAPER_SCHEDULES = [
     "vanilla",
     "smol",
@@ -56,7 +58,6 @@ def test_paper_ant_archive_is_300_mb_per_run_and_24_gb_for_80_runs():
     assert footprint.evaluations == 80 * (10_000_000 + 99 * 1024)
 
 
-@pytest.mark.slow
 def test_batch_estimate_is_within_twice_the_compiled_programs_memory():
     """The arithmetic against XLA's own figure for the compiled generation program."""
     config = preset_config("walker2d", "quick", batch_size=32, episode_length=20, num_centroids=64)

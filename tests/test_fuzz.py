@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from budget import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from strategies import multi_channel_schedules
@@ -232,13 +233,13 @@ def load_outcome(data: bytes, path: Path) -> None:
 # ----------------------------------------------------------------------------- parse and load
 
 
-@settings(max_examples=1000, **COMMON)
+@settings(max_examples=examples(1000), **COMMON)
 @given(language_text | token_soup | any_text)
 def test_random_text_parses_or_raises_a_located_schedule_error(text):
     parse_outcome(text)
 
 
-@settings(max_examples=80, **COMMON)
+@settings(max_examples=examples(80), **COMMON)
 @given(mutated_library())
 def test_mutated_library_files_parse_or_raise_a_located_schedule_error(case):
     name, text = case
@@ -254,7 +255,7 @@ def mutated_multi_channel(draw) -> str:
     return text
 
 
-@settings(max_examples=60, **COMMON)
+@settings(max_examples=examples(60), **COMMON)
 @given(mutated_multi_channel())
 def test_mutated_multi_channel_files_parse_or_raise_a_located_schedule_error(text):
     parse_outcome(text)
@@ -265,12 +266,13 @@ def fuzz_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("fuzz")
 
 
-@settings(max_examples=100, **COMMON)
+@settings(max_examples=examples(100), **COMMON)
 @given(corrupted_bytes() | mutated_library_bytes)
 def test_loading_any_file_gives_a_schedule_or_a_located_schedule_error(fuzz_dir, data):
     load_outcome(data, fuzz_dir / "fuzzed.sched")
 
 
+@pytest.mark.slow  # verifies every bundled and example schedule
 def test_the_fuzzed_library_is_valid_to_begin_with():
     for name, text in LIBRARY.items():
         assert parse_outcome(text, path=name) is not None, name
@@ -299,7 +301,7 @@ def run_check(paths: list[Path], cwd: Path) -> subprocess.CompletedProcess:
     )
 
 
-@settings(max_examples=5, **COMMON)
+@settings(max_examples=examples(5), **COMMON)
 @given(st.lists(mutated_library_bytes | corrupted_bytes(), min_size=2, max_size=2))
 def test_cli_check_exits_0_or_2_without_a_traceback(fuzz_dir, files):
     paths = []

@@ -38,6 +38,7 @@ def installed(tmp_path_factory) -> Path:
     return site
 
 
+@pytest.mark.slow  # builds and installs the package
 def test_installed_package_works_from_any_directory(installed, tmp_path):
     package = installed / "smol_dsl"
     assert (package / "language" / "sched.lark").is_file()

@@ -32,6 +32,7 @@ def test_more_segments_than_the_limit_is_a_located_error(tmp_path, capsys):
     assert f"hostile.sched:{MAX_SEGMENTS + 1}:1: error: the schedule has {MAX_SEGMENTS + 1} segments" in err
 
 
+@pytest.mark.slow  # compiles the largest schedule the language takes
 def test_evaluation_memory_does_not_grow_with_the_number_of_segments():
     t = jnp.linspace(0.0, 1.0, 100_000)
 

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import sympy as sp
+from budget import examples
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from strategies import (
@@ -135,7 +136,7 @@ def monotone_on(values: np.ndarray, way: str) -> bool:
 # ----------------------------------------------------------------------------- coverage
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules())
 def test_valid_schedules_parse_and_tile_the_run(spec: ScheduleSpec):
     schedule = compile_spec(spec)
@@ -172,7 +173,7 @@ def test_valid_schedules_parse_and_tile_the_run(spec: ScheduleSpec):
 # ----------------------------------------------------------------------------- JAX == sympy
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(declare=False), seeds, st.lists(st.floats(0, 1, width=32), min_size=7, max_size=7))
 def test_jax_alpha_agrees_with_the_sympy_piecewise(spec: ScheduleSpec, seed: int, extra: list[float]):
     schedule = compile_spec(spec)
@@ -193,7 +194,7 @@ def test_jax_alpha_agrees_with_the_sympy_piecewise(spec: ScheduleSpec, seed: int
     assert close(mapped, values, rtol=1e-6, atol=1e-7)
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(declare=False), seeds)
 def test_alpha_follows_the_definition_of_each_shape(spec: ScheduleSpec, seed: int):
     """alpha(t) against the ground truth: each shape's documented formula, in float64."""
@@ -214,7 +215,7 @@ def test_alpha_follows_the_definition_of_each_shape(spec: ScheduleSpec, seed: in
 # ----------------------------------------------------------------------------- the certificate
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(), seeds, phase_counts)
 def test_certificate_bounds_every_alpha_and_alpha_is_positive(spec: ScheduleSpec, seed: int, n: int):
     schedule = compile_spec(spec)
@@ -260,7 +261,7 @@ def test_certificate_bounds_every_alpha_and_alpha_is_positive(spec: ScheduleSpec
 # ----------------------------------------------------------------------------- the tail
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(kinds=NO_BELLS), seeds, phase_counts)
 def test_alpha_is_exactly_one_in_the_tail(spec: ScheduleSpec, seed: int, n: int):
     schedule = compile_spec(spec)
@@ -298,7 +299,7 @@ def test_every_form_of_an_alpha_one_tail_is_exactly_one(shape):
 # ----------------------------------------------------------------------------- declared properties
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(kinds=NO_BELLS, bounds=True), seeds, phase_counts)
 def test_declared_bounds_hold(spec: ScheduleSpec, seed: int, n: int):
     assert spec.bounds is not None
@@ -314,7 +315,7 @@ def test_declared_bounds_hold(spec: ScheduleSpec, seed: int, n: int):
         assert np.all(sample >= low - slack) and np.all(sample <= high + slack), (sample.min(), sample.max())
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(kinds=MONOTONE_KINDS), seeds)
 def test_declared_and_certified_monotone_segments_are_monotone(spec: ScheduleSpec, seed: int):
     schedule = compile_spec(spec)
@@ -350,7 +351,7 @@ def test_true_monotone_declarations_of_easings_are_proven(easing, way):
 # ----------------------------------------------------------------------------- discretisation
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(kinds=NO_BELLS, declare=False), seeds, phase_counts)
 def test_phase_alphas_sample_alpha_at_phase_starts(spec: ScheduleSpec, seed: int, n: int):
     schedule = compile_spec(spec)
@@ -368,7 +369,7 @@ def test_phase_alphas_sample_alpha_at_phase_starts(spec: ScheduleSpec, seed: int
     assert np.array_equal(np.asarray(schedule.phase_alphas(n, None)), np.asarray(schedule.phase_alphas(n, key_of(0))))
 
 
-@settings(max_examples=8, **COMMON)
+@settings(max_examples=examples(8), **COMMON)
 @given(valid_schedules(kinds=CHEAP_KINDS, declare=False), seeds, phase_counts, st.data())
 def test_phase_alpha_is_one_compiled_function_of_a_traced_phase(spec: ScheduleSpec, seed: int, n: int, data):
     schedule = compile_spec(spec)
@@ -393,7 +394,7 @@ def test_phase_alpha_is_one_compiled_function_of_a_traced_phase(spec: ScheduleSp
 # ----------------------------------------------------------------------------- random segments
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(kinds=RANDOM_HEAVY, declare=False), seeds, seeds, phase_counts)
 def test_random_segments_are_a_function_of_the_key(spec: ScheduleSpec, seed: int, other: int, n: int):
     schedule = compile_spec(spec)
@@ -414,7 +415,7 @@ def test_random_segments_are_a_function_of_the_key(spec: ScheduleSpec, seed: int
             assert seed == other or not np.array_equal(a, c)
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(kinds=RANDOM_HEAVY, declare=False), seeds, phase_counts)
 def test_random_values_lie_in_their_range(spec: ScheduleSpec, seed: int, n: int):
     schedule = compile_spec(spec)
@@ -436,7 +437,7 @@ def test_random_values_lie_in_their_range(spec: ScheduleSpec, seed: int, n: int)
             assert np.all(sample >= low - slack) and np.all(sample <= high + slack), (low, high, sample)
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(random_segment_schedules(), seeds)
 def test_random_segments_draw_one_value_per_step(case: tuple[ScheduleSpec, int], seed: int):
     spec, n = case
@@ -459,7 +460,7 @@ def test_random_segments_draw_one_value_per_step(case: tuple[ScheduleSpec, int],
         assert len(set(phases[ks].tolist())) == len(set(bins)) == r.count
 
 
-@settings(max_examples=6, **COMMON)
+@settings(max_examples=examples(6), **COMMON)
 @given(
     st.sampled_from(("", " every 1%", " every 0.01", " every 1/100")),
     st.integers(10, 200),
@@ -491,7 +492,7 @@ def refusal(case) -> smol_dsl.ScheduleError:
     pytest.fail(f"{case.rule}: accepted\n{case.text}")
 
 
-@settings(max_examples=60, **COMMON)
+@settings(max_examples=examples(60), **COMMON)
 @given(invalid_schedules())
 def test_invalid_schedules_raise_one_located_schedule_error(case):
     event(case.rule.partition(":")[0])
@@ -519,7 +520,7 @@ def random_draws_of(schedule: smol_dsl.Schedule, channel: Channel, key: jax.Arra
     return [None if d is None else np.asarray(d) for d in schedule.curve(channel).draws(key)]
 
 
-@settings(max_examples=12, **COMMON)
+@settings(max_examples=examples(12), **COMMON)
 @given(multi_channel_schedules(), seeds, phase_counts)
 def test_every_channel_is_verified_and_evaluated_against_its_truth(multi: MultiChannelSpec, seed: int, n: int):
     schedule = smol_dsl.parse(multi.text)
@@ -551,7 +552,7 @@ def test_every_channel_is_verified_and_evaluated_against_its_truth(multi: MultiC
         assert close(values[:, column], want), (channel.name, values[:, column], want)
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(multi_channel_schedules(), st.data(), seeds)
 def test_declaration_order_does_not_change_any_value(multi: MultiChannelSpec, data, seed: int):
     order = data.draw(st.permutations(range(len(multi.channels))))
@@ -566,7 +567,7 @@ def test_declaration_order_does_not_change_any_value(multi: MultiChannelSpec, da
     assert first.certificates == second.certificates
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(valid_schedules(kinds=CHEAP_KINDS), seeds, phase_counts)
 def test_one_channel_files_equal_their_gear_only_form(spec: ScheduleSpec, seed: int, n: int):
     plain = compile_spec(spec)
@@ -579,7 +580,7 @@ def test_one_channel_files_equal_their_gear_only_form(spec: ScheduleSpec, seed: 
     assert explicit.checked_phase_values(n, key).tobytes() == values.tobytes()
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(multi_channel_schedules(max_body=1, targets=False))
 def test_check_targets_needs_no_listing_of_a_body_when_no_channel_names_targets(multi: MultiChannelSpec):
     schedule = smol_dsl.parse(multi.text, path="m.sched")
@@ -587,7 +588,7 @@ def test_check_targets_needs_no_listing_of_a_body_when_no_channel_names_targets(
     schedule.check_targets(None, "toy")
 
 
-@settings(max_examples=10, **COMMON)
+@settings(max_examples=examples(10), **COMMON)
 @given(multi_channel_schedules(max_body=1, targets=True), st.data())
 def test_check_targets_accepts_exactly_the_bodies_that_have_every_target(multi: MultiChannelSpec, data):
     schedule = smol_dsl.parse(multi.text, path="m.sched")
@@ -610,7 +611,7 @@ def test_check_targets_accepts_exactly_the_bodies_that_have_every_target(multi: 
         schedule.check_targets(None, "toy")
 
 
-@settings(max_examples=40, **COMMON)
+@settings(max_examples=examples(40), **COMMON)
 @given(invalid_multi_channel_schedules())
 def test_invalid_multi_channel_files_raise_one_located_schedule_error(case):
     event(case.rule.partition(":")[0].rstrip("0123456789 "))

@@ -401,6 +401,7 @@ def test_report_option_mistakes(pristine, tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------- many schedules, odd names
+@pytest.mark.slow  # a report of many schedules
 def test_report_of_many_schedules_without_warnings(tmp_path, capsys):
     schedules = {f"s{k}": smol_dsl.load(p) for k, p in enumerate(many_schedules(tmp_path, 12), start=1)}
     for name in schedules:

@@ -124,6 +124,7 @@ def test_a_second_process_on_a_run_directory_is_refused(small_run, tmp_path, cap
         assert lock.held
 
 
+@pytest.mark.slow  # its sweep commands size Brax tasks before they are refused
 def test_a_second_sweep_process_is_refused_but_parts_share_a_sweep(library, tmp_path, capsys):
     out = tmp_path / "sweep"
     schedules = [library["human"], library["smol"]]

@@ -36,6 +36,7 @@ def test_out_in_a_read_only_directory(tmp_path, capsys):
     assert "give an --out where you can write" in err
 
 
+@pytest.mark.slow  # `run` sizes the Brax task before it creates the directory
 def test_out_on_a_read_only_file_system(tmp_path, monkeypatch, capsys):
     """As root cannot be kept out by permissions, the file system says EROFS for one directory."""
     read_only = tmp_path / "mnt"
@@ -192,6 +193,7 @@ def test_full_disk_while_writing_metrics_then_resume_without_metrics(small_run, 
     assert (out / "metrics.csv").read_text() == (small_run / "metrics.csv").read_text()
 
 
+@pytest.mark.slow  # `run` sizes the Brax task before it sets the directory up
 def test_full_disk_while_setting_up_leaves_nothing(library, tmp_path, monkeypatch):
     out = tmp_path / "run"
     real = rundir_files.atomic_write
