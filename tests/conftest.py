@@ -3,7 +3,7 @@ library parsed and verified once, and the Brax tasks the task tests share.
 
 `pytest -m "not slow"` leaves out what compiles Brax physics or trains (the edit loop);
 tests that use a compiling fixture are marked here, the others in their own files. In that
-run the property and fuzz tests draw a quarter of their examples, the same every run
+run the property and fuzz tests draw an eighth of their examples, the same every run
 (tests/budget.py).
 
 Compile once per session: JAX's persistent compilation cache is on for the test session and
