@@ -23,7 +23,6 @@ from smol_dsl.runner import (
     load_archive,
     preset_config,
     run_experiment,
-    run_sweep,
     schedule_key,
 )
 from smol_dsl.runner.engine import Engine, stack_runs
@@ -341,44 +340,3 @@ def test_cli_refuses_to_overwrite(tmp_path, monkeypatch, capsys):
     assert code == 2 and "already exists" in err
     assert (tmp_path / "taken" / "something").read_text() == "precious"
     assert os.listdir(tmp_path / "taken") == ["something"]
-
-
-BUNDLED_TASKS = ("walker2d", "halfcheetah", "ant_omni", "hopper", "ant_uni")
-
-
-@pytest.mark.parametrize("task_name", BUNDLED_TASKS)
-@pytest.mark.slow
-def test_every_task_runs_under_every_library_schedule(library, task_name):
-    """Every bundled schedule whose channels the task's body has, trained together (one
-    program per task, its body the union of their channels); the others refused, located,
-    before anything is built."""
-    task = make_task(task_name, episode_length=10, hidden_layer_sizes=(8, 8))
-    config = preset_config(
-        task_name,
-        "quick",
-        evaluations=8 * 12,
-        batch_size=8,
-        num_phases=10,
-        num_centroids=16,
-        episode_length=10,
-        hidden_layer_sizes=(8, 8),
-        num_init_cvt_samples=1000,
-    )
-    runnable = {}
-    for name, schedule in library.items():
-        if any(task.spec.anatomy.unknown_targets(c) for c in schedule.channels):
-            # leg-damage's left_leg on a body without one
-            with pytest.raises(smol_dsl.ScheduleError, match=f"task {task_name} has no actuators named"):
-                run_experiment(task, schedule, config)
-        else:
-            check_config(config, schedule)
-            runnable[name] = schedule
-    assert {"vanilla", "growth", "low-gravity"} <= set(runnable)
-    results = run_sweep(task, list(runnable.values()), [0], config)
-    for name, result in zip(runnable, results, strict=True):
-        assert result.final["evaluations"] == 96, name
-        assert result.final["alpha"] == 1.0, name
-        assert result.final["coverage"] > 0 or runnable[name].extinction > 0, name
-        assert np.all(
-            np.isfinite(np.asarray(result.repertoire.fitnesses)[np.asarray(result.repertoire.fitnesses) > -np.inf])
-        ), name

@@ -47,9 +47,9 @@ def task_sizes(name: str, hidden_layer_sizes: tuple[int, ...], backend: str = "s
 
     task = make_task(name, episode_length=1, hidden_layer_sizes=tuple(hidden_layer_sizes), backend=backend)
     state = jax.eval_shape(task.env.reset, jax.random.key(0))
-    params = jax.eval_shape(task.policy.init, jax.random.key(0), jnp.zeros((task.env.observation_size,)))
+    params = jax.eval_shape(task.policy.init, jax.random.key(0), jnp.zeros((task.observation_size,)))
     return TaskSizes(
-        observations=task.env.observation_size,
+        observations=task.observation_size,
         actions=task.env.action_size,
         parameters=sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(params)),
         state_bytes=sum(int(np.prod(leaf.shape)) * leaf.dtype.itemsize for leaf in jax.tree.leaves(state)),

@@ -114,10 +114,16 @@ class Task:
         """Added per filled cell to the QD score so that it is positive."""
         return self.spec.reward_offset * self.episode_length
 
+    @functools.cached_property
+    def observation_size(self) -> int:
+        """The length of an observation, found by tracing a reset (`jax.eval_shape`): Brax's
+        `env.observation_size` runs a whole reset op by op, each time it is asked."""
+        return int(jax.eval_shape(self.env.reset, jax.random.key(0)).obs.shape[-1])
+
     def init_policies(self, key: jax.Array, batch_size: int) -> Any:
         """A batch of freshly initialised policy parameters."""
         keys = jax.random.split(key, batch_size)
-        dummy = jnp.zeros((self.env.observation_size,))
+        dummy = jnp.zeros((self.observation_size,))
         return jax.vmap(self.policy.init, in_axes=(0, None))(keys, dummy)
 
     def episode_start(self, seed: int) -> State:
