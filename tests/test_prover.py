@@ -10,7 +10,6 @@ import pytest
 
 from smol_dsl.language.prover import VerificationTimeoutError, time_limit
 
-
 UNSTOPPED = 30.0
 """CPU seconds the code under a limit would burn if nothing stopped it; a limit of 0.1 s
 must stop it long before (STOPPED): the margin is for a busy process, whose other threads
