@@ -47,9 +47,10 @@ def task_sizes(name: str, hidden_layer_sizes: tuple[int, ...], backend: str = "s
 
     task = make_task(name, episode_length=1, hidden_layer_sizes=tuple(hidden_layer_sizes), backend=backend)
     state = jax.eval_shape(task.env.reset, jax.random.key(0))
-    params = jax.eval_shape(task.policy.init, jax.random.key(0), jnp.zeros((task.observation_size,)))
+    observations = int(state.obs.shape[-1])  # Task.observation_size, from the reset traced here
+    params = jax.eval_shape(task.policy.init, jax.random.key(0), jnp.zeros((observations,)))
     return TaskSizes(
-        observations=task.observation_size,
+        observations=observations,
         actions=task.env.action_size,
         parameters=sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(params)),
         state_bytes=sum(int(np.prod(leaf.shape)) * leaf.dtype.itemsize for leaf in jax.tree.leaves(state)),
