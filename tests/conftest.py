@@ -14,6 +14,12 @@ that another test or process compiled is then loaded, not compiled again; what i
 is the same executable, bit for bit. Every program is kept, however quick to compile: an
 episode's start is computed eagerly (as QDax does), op by op, and loading those few hundred
 small programs costs a fraction of compiling them in each process.
+
+Two CPU devices, whatever the machine (unless XLA_FLAGS already says how many): what
+`smol-dsl run` splits a 2-core machine into. The CLI subprocesses inherit the flag, so a run
+in this process and the same run from the command line are the same programs, compiled
+once, with equal results (tests/small_runs.py gives both one size); test_devices compares
+one device with two.
 """
 
 from __future__ import annotations
@@ -33,6 +39,8 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:  # before JAX is imported: it 
     atexit.register(shutil.rmtree, _cache, ignore_errors=True)
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")  # also the ops of an eager reset
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):  # two CPU devices
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip()
 
 import smol_dsl
 
@@ -50,7 +58,7 @@ def pytest_configure(config: pytest.Config) -> None:
         settings.load_profile("fast-tier")
 
 
-COMPILING_FIXTURES = {"small_run", "walker", "cheetah"}
+COMPILING_FIXTURES = {"small_run", "small_result", "walker", "cheetah"}
 """Fixtures that build and compile Brax tasks: a test that uses one is `slow`."""
 
 
@@ -81,16 +89,22 @@ def walker():
 
 
 @pytest.fixture(scope="session")
-def small_run(library, tmp_path_factory):
-    """An uninterrupted run with the settings of small_runs.FLAGS, as `smol-dsl run` makes it
-    (test_run_directories, test_storage_errors, test_checkpoint)."""
+def small_run(small_result):
+    """The directory of `small_result`: what `smol-dsl run walker2d human` with
+    small_runs.FLAGS writes, but the figures (test_run_directories, test_storage_errors,
+    test_checkpoint, test_runner)."""
+    return small_result.out_dir
+
+
+@pytest.fixture(scope="session")
+def small_result(library, tmp_path_factory):
+    """walker2d under SMOL-Human, seed 0, at small_runs.CONFIG, uninterrupted: its RunResult."""
     from small_runs import CONFIG
 
     from smol_dsl.runner import run_experiment
 
     out = tmp_path_factory.mktemp("small-run") / "run"
-    run_experiment("walker2d", library["human"], CONFIG, out_dir=out)
-    return out
+    return run_experiment("walker2d", library["human"], CONFIG, out_dir=out)
 
 
 @pytest.fixture(scope="session")

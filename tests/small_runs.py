@@ -1,5 +1,9 @@
-"""A run small enough to compile and train in seconds, as the command line and the library
-give it, and helpers for the tests that run, resume and refuse it (in the CLI's own process)."""
+"""The one training size of the run-level tests, as the command line and the library give
+it, and helpers for the tests that run, resume and refuse it (in the CLI's own process).
+
+Every test that trains walker2d uses these settings (schedules, seeds, phases and budgets
+vary; they change no program), so that a test process builds one engine for them and the
+CLI subprocesses load its programs from the session's compilation cache (conftest.py)."""
 
 from __future__ import annotations
 
@@ -8,13 +12,24 @@ from pathlib import Path
 
 from smol_dsl.cli import main
 from smol_dsl.runner import preset_config
+from smol_dsl.runner.engine import shared_task
 
 # the command-line flags and the same settings for the library
-FLAGS = ["--evals", "96", "--batch-size", "8", "--phases", "10", "--centroids", "16", "--episode-length", "10"]
-CONFIG = preset_config(
-    "walker2d", "quick", evaluations=96, batch_size=8, num_phases=10, num_centroids=16, episode_length=10
-)
+FLAGS = ["--evals", "208", "--batch-size", "16", "--phases", "10", "--centroids", "32", "--episode-length", "20"]
+SETTINGS = dict(evaluations=208, batch_size=16, num_phases=10, num_centroids=32, episode_length=20)
+CONFIG = preset_config("walker2d", "quick", **SETTINGS)
 RUN = ["run", "walker2d", "human", *FLAGS, "--no-progress"]
+
+
+def small_config(task: str = "walker2d", **overrides):
+    """The tests' settings for `task`, with fields overridden."""
+    return preset_config(task, "quick", **{**SETTINGS, **overrides})
+
+
+def small_task(name: str = "walker2d"):
+    """The task the runner itself builds for these settings (one per process), so that a
+    test's engine and a run's are one."""
+    return shared_task(name, CONFIG.episode_length, CONFIG.hidden_layer_sizes)
 
 
 def cli(argv, capsys):

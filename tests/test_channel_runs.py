@@ -11,38 +11,29 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+import small_runs
 
 import smol_dsl
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.results.report import ReportError, load_runs
 from smol_dsl.runner import engine as engine_module
-from smol_dsl.runner import preset_config, run_experiment, run_sweep
+from smol_dsl.runner import run_experiment, run_sweep
 from smol_dsl.runner.engine import Engine, shared_engine
 from smol_dsl.runner.progress import ProgressBar
-from smol_dsl.tasks import make_task
 
 pytestmark = pytest.mark.slow  # every test here compiles Brax physics
-
-SMALL = dict(
-    evaluations=16 * 21,
-    batch_size=16,
-    num_phases=20,
-    num_centroids=32,
-    episode_length=20,
-    hidden_layer_sizes=(8, 8),
-    num_init_cvt_samples=2000,
-)
 
 THREE_CHANNELS = Path(__file__).resolve().parent.parent / "examples" / "three-channels.sched"
 
 
 def small_config(**overrides):
-    return preset_config("walker2d", "quick", **{**SMALL, **overrides})
+    """The tests' one size (small_runs), over 20 phases."""
+    return small_runs.small_config(**{"evaluations": 16 * 21, "num_phases": 20, **overrides})
 
 
 @pytest.fixture(scope="module")
 def task():
-    return make_task("walker2d", episode_length=SMALL["episode_length"], hidden_layer_sizes=SMALL["hidden_layer_sizes"])
+    return small_runs.small_task()
 
 
 @pytest.fixture(scope="module")
@@ -65,11 +56,13 @@ def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_ch
     schedule = smol_dsl.load(THREE_CHANNELS)
     assert three_channel_run.channels == (GEAR, Channel("mass"), Channel("friction"))
     values = three_channel_run.bodies
-    assert values.shape == (SMALL["num_phases"], 3)
+    assert values.shape == (small_config().num_phases, 3)
     assert len({tuple(row) for row in values}) > 10  # the body changes from phase to phase
     engine = shared_engine(task, three_channel_run.config, tuple(jax.local_devices()), 1, 1, schedule.channels)
-    programs = engine._step._cache_size(), engine._reevaluate_chunk._cache_size()
-    assert programs[0] >= 1 and programs[1] == 1  # (the initial population's step may be its own program)
+    programs = {part: getattr(engine, part)._cache_size() for part in ("_ask", "_scores", "_tell", "_pick", "_insert")}
+    assert programs["_scores"] == 1  # one scoring program for every generation and re-evaluation
+    assert programs["_pick"] == programs["_insert"] == 1
+    assert programs["_ask"] >= 1 and programs["_tell"] >= 1  # (the initial population may have its own)
     # another run of these channels, with 4 phases of other values and another seed: the same
     # engine (no engine is built), and no new program in it
     built = engine_module._engine.cache_info()
@@ -79,7 +72,7 @@ def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_ch
     assert not np.array_equal(again.bodies, values[:4])
     assert used and all(other is engine for other in used)
     assert engine_module._engine.cache_info().misses == built.misses
-    assert (engine._step._cache_size(), engine._reevaluate_chunk._cache_size()) == programs
+    assert {part: getattr(engine, part)._cache_size() for part in programs} == programs
 
 
 def test_metrics_csv_has_a_column_per_channel(three_channel_run):

@@ -10,9 +10,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from small_runs import FLAGS, RUN, cli, copy_of
+from small_runs import FLAGS, RUN, cli, copy_of, small_config
 
-from smol_dsl.runner import RunError, checkpoint, preset_config
+from smol_dsl.runner import RunError, checkpoint
 from smol_dsl.runner.checkpoint import CheckpointWriter, host_copy, load_checkpoint
 from smol_dsl.runner.directories import prepare_run_directory
 from smol_dsl.tasks import make_task
@@ -100,9 +100,7 @@ def test_resume_from_a_damaged_checkpoint(small_run, tmp_path, capsys, damage):
 def test_resume_from_a_checkpoint_of_another_run(small_run, library, tmp_path, capsys):
     """walker2d's and halfcheetah's archives have the same shapes: the checkpoint says whose it is."""
     out = tmp_path / "halfcheetah"
-    cheetah = preset_config(
-        "halfcheetah", "quick", evaluations=96, batch_size=8, num_phases=10, num_centroids=16, episode_length=10
-    )
+    cheetah = small_config("halfcheetah")
     prepare_run_directory(out, library["human"], cheetah, resume=False).release()
     shutil.copy(small_run / "checkpoint.npz", out / "checkpoint.npz")
     code, err = cli(["run", "halfcheetah", "human", *FLAGS, "--no-progress", "--out", str(out), "--resume"], capsys)
@@ -115,9 +113,9 @@ def test_a_checkpoint_shaped_for_another_policy_is_refused(small_run):
     other = make_task("walker2d", episode_length=10, hidden_layer_sizes=(8, 8))
     template = other.init_policies(jax.random.key(0), 1)
     with pytest.raises(
-        RunError, match=r"its genotypes/params/Dense_0/bias has shape \(1, 16, 64\), but this one needs \(1, 16, 8\)"
+        RunError, match=r"its genotypes/params/Dense_0/bias has shape \(1, 32, 64\), but this one needs \(1, 32, 8\)"
     ):
-        load_checkpoint(small_run / "checkpoint.npz", template, 1, 16, 2)
+        load_checkpoint(small_run / "checkpoint.npz", template, 1, 32, 2)
 
 
 def test_sweep_checkpoint_that_is_not_one(tmp_path):

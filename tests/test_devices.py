@@ -1,57 +1,48 @@
 """Runs sharded over devices equal the same runs on one device: a sweep's runs split
 between two CPU devices (padded to an even count), stepped one at a time or all at once,
-and one run whose population is split between two devices."""
+and one run whose population is split between two devices (the test session has two CPU
+devices: conftest.py)."""
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-
+import jax
 import numpy as np
 import pytest
+from small_runs import CONFIG
 
-MULTI_DEVICE = """
-import json, sys
-import jax, numpy as np, smol_dsl
-from smol_dsl.runner import preset_config, run_sweep
-config = preset_config("walker2d", "quick", evaluations=208, batch_size=16, num_phases=10, num_centroids=32,
-                       episode_length=20)
-schedules = [smol_dsl.load("human"), smol_dsl.load("extinction-50"), smol_dsl.load("smol")]  # 3 runs: padded
-out = {}
-one, two = jax.devices()[:1], jax.devices()
-for name, runs_of, devices, per_step in (
-    ("one", schedules, one, -1),
-    ("two", schedules, two, -1),
-    ("two-vmapped", schedules, two, None),
-    ("one-run-two-devices", schedules[:1], two, -1),  # its population is split between them
-):
-    runs = run_sweep("walker2d", runs_of, [0], config, devices=devices, runs_per_step=per_step)
-    out[name] = [dict(fitnesses=np.asarray(r.repertoire.fitnesses).tolist(), rows=r.metrics) for r in runs]
-out["devices"] = len(jax.devices())
-with open(sys.argv[1], "w") as file:
-    json.dump(out, file)
-"""
+from smol_dsl.runner import run_sweep
+
+pytestmark = pytest.mark.slow  # trains
 
 
-@pytest.mark.slow
-def test_runs_sharded_over_two_devices_equal_one_device(tmp_path):
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
-    result = tmp_path / "result.json"
-    done = subprocess.run(
-        [sys.executable, "-c", MULTI_DEVICE, str(result)], env=env, capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stderr
-    out = json.loads(result.read_text())
-    assert out["devices"] == 2
-    out["one-run"] = out["one"][:1]  # a run of a sweep is the run alone (test_sweep)
-    for reference, name in (("one", "two"), ("one", "two-vmapped"), ("one-run", "one-run-two-devices")):
-        for one, other in zip(out[reference], out[name], strict=True):
-            a, b = np.asarray(one["fitnesses"]), np.asarray(other["fitnesses"])
-            np.testing.assert_array_equal(a > -np.inf, b > -np.inf)
-            np.testing.assert_allclose(a, b, rtol=1e-5)
-            for x, y in zip(one["rows"], other["rows"], strict=True):
-                for field in ("event", "evaluations", "reevaluations", "alpha", "non_finite"):
-                    assert x[field] == y[field]
-                assert x["max_fitness"] == pytest.approx(y["max_fitness"], rel=1e-5)
+@pytest.fixture(scope="module")
+def layouts(library, small_result):
+    """The same runs in each layout: three runs (padded to four on two devices), and one."""
+    schedules = [library["human"], library["extinction-50"], library["smol"]]
+    one, two = jax.devices()[:1], jax.devices()
+    assert len(two) == 2
+    runs = {
+        name: run_sweep("walker2d", schedules, [0], CONFIG, devices=devices, runs_per_step=per_step)
+        for name, devices, per_step in (
+            ("one", one, -1),
+            ("two", two, -1),
+            ("two-vmapped", two, None),
+        )
+    }
+    runs["one-run"] = runs["one"][:1]  # a run of a sweep is the run alone (test_sweep)
+    runs["one-run-two-devices"] = [small_result]  # its population is split between them
+    return runs
+
+
+@pytest.mark.parametrize(
+    ("reference", "layout"), [("one", "two"), ("one", "two-vmapped"), ("one-run", "one-run-two-devices")]
+)
+def test_runs_sharded_over_two_devices_equal_one_device(layouts, reference, layout):
+    for one, other in zip(layouts[reference], layouts[layout], strict=True):
+        a, b = np.asarray(one.repertoire.fitnesses), np.asarray(other.repertoire.fitnesses)
+        np.testing.assert_array_equal(a > -np.inf, b > -np.inf)
+        np.testing.assert_allclose(a, b, rtol=1e-5)
+        for x, y in zip(one.metrics, other.metrics, strict=True):
+            for field in ("event", "evaluations", "reevaluations", "alpha", "non_finite"):
+                assert x[field] == y[field]
+            assert x["max_fitness"] == pytest.approx(y["max_fitness"], rel=1e-5)

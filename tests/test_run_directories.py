@@ -172,13 +172,13 @@ def test_a_sweep_resumed_with_another_number_of_processes_is_refused(library, tm
 
 def test_a_refused_resume_names_each_differing_setting(small_run, tmp_path, capsys):
     out = copy_of(small_run, tmp_path)
-    argv = ["run", "walker2d", "human", "--evals", "192", "--batch-size", "16", "--phases", "10"]
-    argv += ["--centroids", "16", "--episode-length", "10", "--seed", "3", "--no-progress"]
+    argv = ["run", "walker2d", "human", "--evals", "192", "--batch-size", "8", "--phases", "10"]
+    argv += ["--centroids", "32", "--episode-length", "20", "--seed", "3", "--no-progress"]
     code, err = cli([*argv, "--out", str(out), "--resume"], capsys)
     assert code == 2
     assert f"{out} was started with different settings" in err
-    assert "--evals: the run was started with 96, not 192" in err
-    assert "--batch-size: the run was started with 8, not 16" in err
+    assert "--evals: the run was started with 208, not 192" in err
+    assert "--batch-size: the run was started with 16, not 8" in err
     assert "--seed: the run was started with 0, not 3" in err
     assert "{" not in err and "--phases:" not in err  # no JSON dump, nothing that agrees
     code, err = cli(["run", "walker2d", "smol", *FLAGS, "--no-progress", "--out", str(out), "--resume"], capsys)
@@ -190,17 +190,17 @@ def test_a_refused_sweep_resume_names_schedules_seeds_and_settings(library, tmp_
     every = plan_sweep([library["human"], library["smol"]], [0, 1, 2], CONFIG)
     prepare_sweep_directory(out, every, every, CONFIG, False, False, "sweep-checkpoint.npz").close()
     other = preset_config(
-        "walker2d", "quick", evaluations=96, batch_size=8, num_phases=10, num_centroids=32, episode_length=10
+        "walker2d", "quick", evaluations=208, batch_size=16, num_phases=10, num_centroids=16, episode_length=20
     )
     changed = plan_sweep([library["human"]], [0, 1], other)
     with pytest.raises(RunError) as caught:
         prepare_sweep_directory(out, changed, changed, other, True, False, "sweep-checkpoint.npz")
     message = str(caught.value)  # the library names its settings
-    assert "num_centroids: the sweep was started with 16, not 32" in message
+    assert "num_centroids: the sweep was started with 32, not 16" in message
     assert "; schedules: the sweep was started with human, smol, not human" in message
     assert "; seeds: the sweep was started with seeds 0..2, not 0, 1" in message
     assert "{" not in message and "--" not in message
     worded = caught.value.worded(OPTIONS)  # the command line, its options
-    assert "--centroids: the sweep was started with 16, not 32" in worded
+    assert "--centroids: the sweep was started with 32, not 16" in worded
     assert "SCHEDULE: the sweep was started with human, smol, not human" in worded
     assert "--first-seed/--seeds: the sweep was started with seeds 0..2, not 0, 1" in worded

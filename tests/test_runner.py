@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from small_runs import cli
+from small_runs import CONFIG, FLAGS, cli, small_config, small_task
 
 import smol_dsl
 from smol_dsl.runner import (
@@ -25,35 +25,18 @@ from smol_dsl.runner import (
     run_experiment,
     schedule_key,
 )
-from smol_dsl.runner.engine import Engine, stack_runs
+from smol_dsl.runner.engine import Engine, shared_engine, stack_runs
 from smol_dsl.runner.map_elites import cvt_centroids
-from smol_dsl.tasks import make_task
-
-SMALL = dict(
-    evaluations=16 * 13,
-    batch_size=16,
-    num_phases=10,
-    num_centroids=32,
-    episode_length=20,
-    hidden_layer_sizes=(8, 8),
-    num_init_cvt_samples=2000,
-)
-
-
-def small_config(**overrides):
-    return preset_config("walker2d", "quick", **{**SMALL, **overrides})
 
 
 @pytest.fixture(scope="session")
 def task():
-    config = small_config()
-    return make_task("walker2d", episode_length=config.episode_length, hidden_layer_sizes=config.hidden_layer_sizes)
+    return small_task()
 
 
 @pytest.fixture(scope="session")
-def human_run(task, library, tmp_path_factory):
-    out = tmp_path_factory.mktemp("runs") / "human"
-    return run_experiment(task, library["human"], small_config(), out_dir=out)
+def human_run(small_result):
+    return small_result
 
 
 @pytest.mark.slow
@@ -178,12 +161,17 @@ def test_extinction_of_every_elite_reseeds(task):
 
 
 def one_run_engine(task, batch_size=16):
-    """The engine for one run on one device, and that run's inputs (alpha 1, seed 0)."""
+    """An engine of its own for one run on one device, and that run's inputs (alpha 1, seed 0)."""
     engine = Engine(
         task, batch_size=batch_size, iso_sigma=0.005, line_sigma=0.05, devices=jax.devices()[:1], num_runs=1
     )
-    start = engine.put(stack_runs([task.episode_start(0)]))
-    return engine, start, engine.put(jnp.ones((1, 1), jnp.float32))  # one run, its body (alpha,)
+    return engine, *run_inputs(engine)
+
+
+def run_inputs(engine):
+    """One run's episode start (seed 0) and body (alpha 1) on the engine's devices."""
+    start = engine.put(stack_runs([engine.task.episode_start(0)]))
+    return start, engine.put(jnp.ones((1, 1), jnp.float32))
 
 
 def filled(repertoire):
@@ -191,8 +179,11 @@ def filled(repertoire):
 
 
 @pytest.mark.slow
-def test_extinction_removes_about_p_of_the_elites(task):
-    engine, start, alpha = one_run_engine(task)
+def test_extinction_removes_about_p_of_the_elites(task, human_run):
+    """On the engine of the human run, with an archive of 256 cells (its 32 take too few of
+    the policies' descriptors to measure a rate)."""
+    engine = shared_engine(task, CONFIG, tuple(jax.local_devices()), 1, 1)
+    start, alpha = run_inputs(engine)
     centroids = cvt_centroids(256, task.descriptor_low, task.descriptor_high, 5000, jax.random.key(0))
     archive = engine.empty_archives(centroids[None])
     for k in range(5):  # fresh policies into the empty archive, then four generations of offspring
@@ -264,33 +255,14 @@ def _cli(*args, cwd):
     return subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-CLI_RUN = [
-    "run",
-    "walker2d",
-    "human",
-    "--evals",
-    str(16 * 13),
-    "--batch-size",
-    "16",
-    "--phases",
-    "10",
-    "--centroids",
-    "32",
-    "--episode-length",
-    "20",
-    "--no-progress",
-]
+CLI_RUN = ["run", "walker2d", "human", *FLAGS, "--no-progress"]  # the human run's settings
 
 
 @pytest.mark.slow
-def test_kill_9_then_resume_equals_uninterrupted_run(tmp_path):
+def test_kill_9_then_resume_equals_uninterrupted_run(human_run, tmp_path):
     """`smol-dsl run` killed with SIGKILL after a few checkpointed phases, then --resume, ends
-    exactly as an uninterrupted run. (The uninterrupted run goes first: the later processes
-    load its compiled programs from the session's compilation cache.)"""
-    whole = _cli(*CLI_RUN, "--out", "whole", cwd=tmp_path)
-    out, err = whole.communicate(timeout=600)
-    assert whole.returncode == 0, err
-    assert all((tmp_path / "whole" / name).is_file() for name in ("metrics.png", "archive.png"))  # the CLI drew them
+    exactly as the same run uninterrupted: the human run of this process, whose programs the
+    CLI's are (the same settings and devices) and loads from the session's compilation cache."""
     killed = _cli(*CLI_RUN, "--out", "killed", cwd=tmp_path)
     metrics = tmp_path / "killed" / "metrics.csv"
     deadline = time.time() + 600
@@ -307,8 +279,9 @@ def test_kill_9_then_resume_equals_uninterrupted_run(tmp_path):
     assert "done: walker2d under SMOL-Human" in out
     assert out.splitlines()[0].startswith("done:"), out  # no MJX Warp lines before it
     assert "not actively being maintained" not in err and not (tmp_path / "MUJOCO_LOG.TXT").exists()
-    assert (tmp_path / "killed" / "metrics.csv").read_text() == (tmp_path / "whole" / "metrics.csv").read_text()
-    ours, theirs = np.load(tmp_path / "killed" / "archive.npz"), np.load(tmp_path / "whole" / "archive.npz")
+    assert all((tmp_path / "killed" / name).is_file() for name in ("metrics.png", "archive.png"))  # the CLI drew them
+    assert (tmp_path / "killed" / "metrics.csv").read_text() == (human_run.out_dir / "metrics.csv").read_text()
+    ours, theirs = np.load(tmp_path / "killed" / "archive.npz"), np.load(human_run.out_dir / "archive.npz")
     for name in theirs.files:
         np.testing.assert_array_equal(ours[name], theirs[name])
 

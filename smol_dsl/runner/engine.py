@@ -1,15 +1,18 @@
-"""The engine: phased MAP-Elites runs as one program, runs an axis of the computation.
+"""The engine: phased MAP-Elites runs as jitted programs, runs an axis of the computation.
 
 `smol-dsl run` is one run of it and `smol-dsl sweep` many. Every run has the same task and
 settings but its own seed, schedule and archive, and all runs reach their phase boundaries
-together. So one jitted program advances every run by one generation
-(`RunStep.generation`), and one re-evaluates every archive (`RunStep.reevaluate_chunk`),
-with each run's body (a (C,) array of the factors of the schedules' channels: plain gear's
-alpha, mass, friction, ...) a traced input. With `jax.shard_map` over a (runs, population) device mesh, runs are split
-across devices (independent: no communication), and devices left over split each offspring
-batch (its rollouts are gathered back). On each device the local runs are either vmapped
-together (accelerators: one big batch) or mapped one after another inside the program
-(`runs_per_step`; CPUs, where rollouts slow down as batches grow past ~128).
+together. So the same programs advance every run by one generation (`RunStep.generation`)
+and re-evaluate every archive (`RunStep.reevaluate_chunk`), with each run's body (a (C,)
+array of the factors of the schedules' channels: plain gear's alpha, mass, friction, ...) a
+traced input. A step is compiled in its parts (`RunStep`): choosing the batch, scoring it
+and inserting the results, so that generations and re-evaluations share one scoring
+program, the rollout, nearly all of the compilation. With `jax.shard_map` over a (runs,
+population) device mesh, runs are split across devices (independent: no communication),
+and devices left over split each offspring batch (its rollouts are gathered back). On each
+device the local runs are either vmapped together (accelerators: one big batch) or mapped
+one after another inside the program (`runs_per_step`; CPUs, where rollouts slow down as
+batches grow past ~128).
 
 A single run on several devices splits its population across all of them, so `smol-dsl
 run` uses the whole machine. Per run, the programs are the same per-run step with the same
@@ -79,9 +82,14 @@ class Engine:
         self.mesh = Mesh(grid, (RUNS, POPULATION))
         self.sharding = NamedSharding(self.mesh, PartitionSpec(RUNS))
         map_elites = make_map_elites(batch_size, task.qd_offset, iso_sigma, line_sigma)
-        self.run_step = RunStep(map_elites, task.init_policies, self._score, batch_size)
-        self._step = self._over_runs(self.run_step.generation, donate=(0,))
-        self._reevaluate_chunk = self._over_runs(self.run_step.reevaluate_chunk, donate=(0,))
+        self.run_step = step = RunStep(map_elites, task.init_policies, self._score, batch_size)
+        # a generation is ask, score, tell and a re-evaluation pick, score, insert: the same
+        # scoring program for both (the rollout is nearly all of the compilation)
+        self._ask = self._over_runs(step.ask)
+        self._scores = self._over_runs(step.score)
+        self._tell = self._over_runs(step.tell, donate=(0,))
+        self._pick = self._over_runs(step.pick)
+        self._insert = self._over_runs(step.insert, donate=(0,))
         self._metrics = self._over_runs(lambda archive: default_qd_metrics(archive, task.qd_offset))
         self._split = jax.jit(jax.vmap(jax.random.split))
 
@@ -139,7 +147,9 @@ class Engine:
         """One generation of every run in its body, (runs, channels) (the archives are
         donated). Returns the archives, each run's metrics, non-finite results and whether
         it was reseeded."""
-        repertoires, metrics, dropped, reseeded = self._step(repertoires, bodies, starts, keys)
+        genotypes, reseeded = self._ask(repertoires, keys)
+        fitnesses, descriptors = self._scores(genotypes, bodies, starts)
+        repertoires, metrics, dropped = self._tell(repertoires, genotypes, fitnesses, descriptors)
         metrics, dropped, reseeded = jax.device_get((metrics, dropped, reseeded))
         return repertoires, metrics, np.asarray(dropped), np.asarray(reseeded)
 
@@ -159,15 +169,10 @@ class Engine:
         fresh = self.empty_archives(repertoires.centroids)
         non_finite = np.zeros(len(filled), dtype=np.int64)
         for index, valid in reevaluation_chunks(filled, self.batch_size):
-            fresh, keys, dropped = self._reevaluate_chunk(
-                fresh,
-                repertoires.genotypes,
-                self.put(jnp.asarray(index)),
-                self.put(jnp.asarray(valid)),
-                bodies,
-                starts,
-                extinctions,
-                keys,
+            genotypes, keys, death_keys = self._pick(repertoires.genotypes, self.put(jnp.asarray(index)), keys)
+            fitnesses, descriptors = self._scores(genotypes, bodies, starts)
+            fresh, dropped = self._insert(
+                fresh, genotypes, fitnesses, descriptors, self.put(jnp.asarray(valid)), extinctions, death_keys
             )
             non_finite += np.asarray(dropped)
         return fresh, np.asarray([len(f) for f in filled]), non_finite

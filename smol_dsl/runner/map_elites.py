@@ -6,13 +6,16 @@
 run of any number of phases compiles the same few programs:
 
 - `generation`: offspring by iso+line variation of uniformly selected elites (QDax's
-  `ask`), or fresh policies when the archive is empty (reseeding); the task's rollouts at
-  actuator scale α; insertion into the CVT archive (QDax's `tell`) after non-finite
-  results are dropped;
-- `reevaluate_chunk`: at a phase boundary, every filled cell is scored again under the new
-  α, elites die with the schedule's extinction probability, and the survivors go into a
+  `ask`), or fresh policies when the archive is empty (reseeding); the task's rollouts in
+  the body; insertion into the CVT archive (QDax's `tell`) after non-finite results are
+  dropped;
+- `reevaluate_chunk`: at a phase boundary, every filled cell is scored again in the new
+  body, elites die with the schedule's extinction probability, and the survivors go into a
   fresh archive (collisions keep the best). It runs in fixed-size chunks over the filled
   cells only (`reevaluation_chunks`), so its cost is proportional to the filled cells.
+
+Both are a choice of batch, the same scoring and an insertion (`RunStep`'s parts), which
+the engine compiles separately so that the scoring is compiled once.
 """
 
 from __future__ import annotations
@@ -123,20 +126,23 @@ class RunStep:
     """One run's step of phased MAP-Elites, traced (not jitted): the engine maps it over
     runs and devices. `score(genotypes, body, start)` is the task's scoring of a batch in a
     body, the factors of the scheduled channels (the engine's, split across devices where it
-    has several)."""
+    has several).
+
+    Each step is three parts: choosing a batch (`ask` offspring, or `pick` elites to
+    re-evaluate), `score` and inserting the results (`tell`, or `insert` survivors). The
+    engine compiles each part as its own program, so that the rollout, nearly all of the
+    compilation, is one program that generations and re-evaluations share;
+    `generation` and `reevaluate_chunk` are the whole steps, as one function."""
 
     map_elites: MAPElites
     init_policies: Callable[[jax.Array, int], Any]
     score: Callable[[Any, jax.Array, Any], tuple[jax.Array, jax.Array]]
     batch_size: int
 
-    def generation(
-        self, repertoire: MapElitesRepertoire, body: jax.Array, start: Any, key: jax.Array
-    ) -> tuple[MapElitesRepertoire, Metrics, jax.Array, jax.Array]:
-        """One generation in `body`: offspring of the archive's elites by
-        iso+line variation, or fresh random policies if the archive is empty (the first
-        generation, or after extinction emptied it), scored and inserted. Returns the
-        archive, QDax's metrics, how many results were non-finite and whether it reseeded."""
+    def ask(self, repertoire: MapElitesRepertoire, key: jax.Array) -> tuple[Any, jax.Array]:
+        """Offspring of the archive's elites by iso+line variation, or fresh random policies
+        if the archive is empty (the first generation, or after extinction emptied it);
+        also whether it was empty."""
         ask_key, score_key = jax.random.split(key)
         del score_key  # episodes start deterministically; the key is split as QDax's loop does
         empty = ~jnp.any(repertoire.fitnesses > -jnp.inf)
@@ -145,9 +151,46 @@ class RunStep:
             lambda: self.init_policies(ask_key, self.batch_size),
             lambda: self.map_elites.ask(repertoire, None, ask_key)[0],
         )
+        return genotypes, empty
+
+    def tell(
+        self, repertoire: MapElitesRepertoire, genotypes: Any, fitnesses: jax.Array, descriptors: jax.Array
+    ) -> tuple[MapElitesRepertoire, Metrics, jax.Array]:
+        """The scored batch into the archive; returns it, QDax's metrics and how many results
+        were non-finite (dropped)."""
+        return tell_finite(self.map_elites, genotypes, fitnesses, descriptors, repertoire)
+
+    def generation(
+        self, repertoire: MapElitesRepertoire, body: jax.Array, start: Any, key: jax.Array
+    ) -> tuple[MapElitesRepertoire, Metrics, jax.Array, jax.Array]:
+        """One generation in `body`: asked, scored and told. Returns the archive, QDax's
+        metrics, how many results were non-finite and whether it reseeded."""
+        genotypes, empty = self.ask(repertoire, key)
         fitnesses, descriptors = self.score(genotypes, body, start)
-        repertoire, metrics, dropped = tell_finite(self.map_elites, genotypes, fitnesses, descriptors, repertoire)
+        repertoire, metrics, dropped = self.tell(repertoire, genotypes, fitnesses, descriptors)
         return repertoire, metrics, dropped, empty
+
+    def pick(self, source: Any, index: jax.Array, key: jax.Array) -> tuple[Any, jax.Array, jax.Array]:
+        """The genotypes of `source` at `index`, to re-evaluate; the run's next key, and the
+        key of this chunk's extinction draws."""
+        key, score_key, death_key = jax.random.split(key, 3)
+        del score_key
+        return jax.tree.map(lambda x: x[index], source), key, death_key
+
+    def insert(
+        self,
+        fresh: MapElitesRepertoire,
+        genotypes: Any,
+        fitnesses: jax.Array,
+        descriptors: jax.Array,
+        valid: jax.Array,
+        extinction: jax.Array,
+        death_key: jax.Array,
+    ) -> tuple[MapElitesRepertoire, jax.Array]:
+        """Re-scored elites that are `valid` (not padding), survive extinction and scored
+        finite, into `fresh`; returns it and how many valid ones were non-finite."""
+        survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
+        return insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
 
     def reevaluate_chunk(
         self,
@@ -163,12 +206,9 @@ class RunStep:
         """Re-score one chunk of the elites of `source` (genotypes at `index`, `valid` ones
         real) in `body`; those that survive extinction and score finite go into `fresh`.
         Returns the archive, the run's next key and how many valid ones were non-finite."""
-        key, score_key, death_key = jax.random.split(key, 3)
-        del score_key
-        genotypes = jax.tree.map(lambda x: x[index], source)
+        genotypes, key, death_key = self.pick(source, index, key)
         fitnesses, descriptors = self.score(genotypes, body, start)
-        survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
-        fresh, dropped = insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
+        fresh, dropped = self.insert(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
         return fresh, key, dropped
 
 
