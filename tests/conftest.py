@@ -28,6 +28,8 @@ import atexit
 import os
 import shutil
 import tempfile
+from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -60,6 +62,40 @@ def pytest_configure(config: pytest.Config) -> None:
 
 COMPILING_FIXTURES = {"small_run", "small_result", "walker", "cheetah"}
 """Fixtures that build and compile Brax tasks: a test that uses one is `slow`."""
+
+
+SHARED_WORKERS = {
+    "test_runner": "small-runs",
+    "test_devices": "small-runs",
+    "test_sweep": "small-runs",
+    "test_storage_errors": "small-runs",
+    "test_run_directories": "small-runs",
+    "test_checkpoint": "small-runs",
+    "test_channel_runs": "small-runs",
+    "test_seeds": "small-runs",
+    "test_tasks": "brax-tasks",
+    "test_body": "brax-tasks",
+}
+"""Test files that pytest-xdist runs in one worker: those that train at the one size of
+small_runs (they share the session's small run and the engines of its settings), and
+those that share the `walker` and `cheetah` tasks. Every other file is a unit of its own,
+as with `--dist loadfile`."""
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """`--dist loadfile` (the default in pyproject.toml), with the files of SHARED_WORKERS
+    together: each unit goes whole to the next free worker, the largest first."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedWorkers(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return SHARED_WORKERS.get(Path(path).stem, path)
+
+    return SharedWorkers(config, log)
 
 
 @pytest.hookimpl(tryfirst=True)  # before `-m` selects by markers

@@ -61,8 +61,6 @@ def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_ch
     engine = shared_engine(task, three_channel_run.config, tuple(jax.local_devices()), 1, 1, schedule.channels)
     programs = {part: getattr(engine, part)._cache_size() for part in ("_ask", "_scores", "_tell", "_pick", "_insert")}
     assert programs["_scores"] == 1  # one scoring program for every generation and re-evaluation
-    assert programs["_pick"] == programs["_insert"] == 1
-    assert programs["_ask"] >= 1 and programs["_tell"] >= 1  # (the initial population may have its own)
     # another run of these channels, with 4 phases of other values and another seed: the same
     # engine (no engine is built), and no new program in it
     built = engine_module._engine.cache_info()

@@ -213,13 +213,14 @@ def test_full_disk_while_setting_up_leaves_nothing(library, tmp_path, monkeypatc
 
 @pytest.mark.slow
 def test_full_disk_in_a_sweep_names_its_checkpoint(library, tmp_path, monkeypatch):
+    """(test_sweep's four runs: its engine)"""
     out = tmp_path / "sweep"
     monkeypatch.setattr(checkpoint_module, "write_npz", full_disk_after(1, checkpoint_module.write_npz))
     with pytest.raises(RunError) as caught:
-        run_sweep("walker2d", [library["human"]], [0, 1], CONFIG, out_dir=out)
+        run_sweep("walker2d", [library["human"], library["extinction-50"]], [0, 1], CONFIG, out_dir=out)
     message = str(caught.value)
     assert f"cannot write {out / 'sweep-checkpoint.npz'}: No space left on device" in message
     assert "is intact" in message and "--resume" in message
     assert temporaries(out) == []
     with np.load(out / "sweep-checkpoint.npz") as data:
-        assert [p["generation"] for p in json.loads(str(data["progress"]))] == [0, 0]
+        assert [p["generation"] for p in json.loads(str(data["progress"]))] == [0, 0, 0, 0]

@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import gc
 import heapq
 import math
 import operator
 import signal
 import threading
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from itertools import pairwise
@@ -52,25 +54,31 @@ class VerificationTimeoutError(Exception):
 
 @contextlib.contextmanager
 def time_limit(seconds: float) -> Iterator[None]:
-    """Raise VerificationTimeoutError after `seconds` of this process's CPU time (main thread
-    only; elsewhere no limit).
+    """Raise VerificationTimeoutError after `seconds` of the main thread's CPU time under the
+    limit (main thread only; elsewhere no limit).
 
     CPU time, not wall-clock time, so that a busy machine gives the same verdicts as an idle
-    one: sympy's methods are CPU-bound. Python ignores an exception raised while the signal
-    interrupts a garbage-collector or weak-reference callback, so the alarm fires again every
-    RETRY_SECONDS until the exception reaches the code under the limit.
+    one: sympy's methods are CPU-bound. The thread's own, because the process's other
+    threads (JAX's runtime, say) spend the process's CPU time too; and the garbage collector
+    is paused under the limit, because a full collection of a large heap (a long test
+    session's) costs seconds that are not the method's. Python ignores an exception raised
+    while the signal interrupts a weak-reference callback, so the alarm fires again every
+    RETRY_SECONDS of process CPU time until the exception reaches the code under the limit.
     """
     if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
         yield
         return
     armed = True
+    started = time.thread_time()
 
     def on_alarm(signum: int, frame: Any) -> None:
-        if armed:
+        if armed and time.thread_time() - started >= seconds:
             raise VerificationTimeoutError
 
+    collecting = gc.isenabled()
+    gc.disable()
     previous = signal.signal(signal.SIGPROF, on_alarm)
-    signal.setitimer(signal.ITIMER_PROF, seconds, RETRY_SECONDS)
+    signal.setitimer(signal.ITIMER_PROF, seconds, RETRY_SECONDS)  # process time: never before the thread's
     try:
         yield
     finally:
@@ -79,6 +87,8 @@ def time_limit(seconds: float) -> Iterator[None]:
         finally:  # even if the alarm raised just before `armed` was cleared
             signal.setitimer(signal.ITIMER_PROF, 0)
             signal.signal(signal.SIGPROF, previous)
+            if collecting:
+                gc.enable()
 
 
 _SYMPY_FAILURES = (

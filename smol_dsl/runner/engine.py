@@ -91,7 +91,7 @@ class Engine:
         self._pick = self._over_runs(step.pick)
         self._insert = self._over_runs(step.insert, donate=(0,))
         self._metrics = self._over_runs(lambda archive: default_qd_metrics(archive, task.qd_offset))
-        self._split = jax.jit(jax.vmap(jax.random.split))
+        self._split = jax.jit(split_in_two, out_shardings=self.sharding)
 
     def padded_runs(self, runs: int) -> int:
         """The number of runs rounded up to a multiple of the runs axis."""
@@ -114,7 +114,9 @@ class Engine:
 
         spec = PartitionSpec(RUNS)
         sharded = jax.shard_map(local, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
-        return jax.jit(sharded, donate_argnums=donate)
+        # every result split along the runs axis as the arguments are, so that a program's
+        # results, given to the next one, never make it compile a variant for other shardings
+        return jax.jit(sharded, donate_argnums=donate, out_shardings=self.sharding)
 
     def _score(self, genotypes: Any, body: jax.Array, start: Any) -> tuple[jax.Array, jax.Array]:
         """Score one run's batch in its body; along the population axis each device rolls out
@@ -138,8 +140,7 @@ class Engine:
 
     def split(self, keys: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Split every run's key in two, as `state.key, key = split(state.key)` does."""
-        pairs = self._split(keys)
-        return pairs[:, 0], pairs[:, 1]
+        return self._split(keys)
 
     def step(
         self, repertoires: MapElitesRepertoire, bodies: jax.Array, starts: Any, keys: jax.Array
@@ -234,6 +235,12 @@ def shared_engine(
         num_runs,
         tuple(channels),
     )
+
+
+def split_in_two(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Each of a batch of keys split in two: the first halves, and the second."""
+    pairs = jax.vmap(jax.random.split)(keys)
+    return pairs[:, 0], pairs[:, 1]
 
 
 def stack_runs(trees: list[Any]) -> Any:
