@@ -60,7 +60,7 @@ def pytest_configure(config: pytest.Config) -> None:
         settings.load_profile("fast-tier")
 
 
-COMPILING_FIXTURES = {"small_run", "small_result", "walker", "cheetah"}
+COMPILING_FIXTURES = {"small_run", "small_result", "mixed_sweep", "walker", "cheetah"}
 """Fixtures that build and compile Brax tasks: a test that uses one is `slow`."""
 
 
@@ -149,3 +149,18 @@ def cheetah():
     from smol_dsl.tasks import make_task
 
     return make_task("halfcheetah", episode_length=TASK_EPISODE)
+
+
+@pytest.fixture(scope="session")
+def mixed_sweep(tmp_path_factory):
+    """vanilla (gear only), growth (gear and mass) and leg-damage (a damaged final left leg)
+    trained together at small_runs.CONFIG, seed 0: the program's body is the union of their
+    channels, and its three runs are padded to four on two devices (test_channel_runs,
+    test_devices). (sweep directory, config, results)"""
+    from small_runs import CONFIG, MIXED_SWEEP
+
+    from smol_dsl.runner import run_sweep
+
+    out = tmp_path_factory.mktemp("mixed") / "sweep"
+    schedules = [smol_dsl.load(name) for name in MIXED_SWEEP]
+    return out, CONFIG, run_sweep("walker2d", schedules, [0], CONFIG, out_dir=out)

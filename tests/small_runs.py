@@ -19,6 +19,7 @@ FLAGS = ["--evals", "208", "--batch-size", "16", "--phases", "10", "--centroids"
 SETTINGS = dict(evaluations=208, batch_size=16, num_phases=10, num_centroids=32, episode_length=20)
 CONFIG = preset_config("walker2d", "quick", **SETTINGS)
 RUN = ["run", "walker2d", "human", *FLAGS, "--no-progress"]
+MIXED_SWEEP = ("vanilla", "growth", "leg-damage")  # conftest's mixed_sweep: schedules of different channels
 
 
 def small_config(task: str = "walker2d", **overrides):

@@ -17,7 +17,7 @@ import smol_dsl
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.results.report import ReportError, load_runs
 from smol_dsl.runner import engine as engine_module
-from smol_dsl.runner import run_experiment, run_sweep
+from smol_dsl.runner import run_experiment
 from smol_dsl.runner.engine import Engine, shared_engine
 from smol_dsl.runner.progress import ProgressBar
 
@@ -96,16 +96,6 @@ def test_progress_bar_shows_every_channel(three_channel_run, capsys):
     bar.close()
     shown = capsys.readouterr().err
     assert "alpha 1.000 mass 1.000 friction 1.000" in shown
-
-
-@pytest.fixture(scope="module")
-def mixed_sweep(tmp_path_factory):
-    """vanilla (gear only), growth (gear and mass) and leg-damage (a damaged final left leg)
-    trained together: the program's body is the union of their channels."""
-    out = tmp_path_factory.mktemp("mixed") / "sweep"
-    schedules = [smol_dsl.load(name) for name in ("vanilla", "growth", "leg-damage")]
-    config = small_config(num_phases=10, evaluations=16 * 13)
-    return out, config, run_sweep("walker2d", schedules, [0], config, out_dir=out)
 
 
 def test_a_sweep_trains_schedules_of_different_channels_together(mixed_sweep):

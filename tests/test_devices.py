@@ -1,6 +1,6 @@
 """Runs sharded over devices equal the same runs on one device: a sweep's runs split
-between two CPU devices (padded to an even count), stepped one at a time or all at once,
-and one run whose population is split between two devices (the test session has two CPU
+between two CPU devices (three, padded to four), stepped one at a time or all at once, and
+one run whose population is split between two devices (the test session has two CPU
 devices: conftest.py)."""
 
 from __future__ import annotations
@@ -8,29 +8,28 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
-from small_runs import CONFIG
+from small_runs import CONFIG, MIXED_SWEEP
 
-from smol_dsl.runner import run_sweep
+import smol_dsl
+from smol_dsl.runner import run_experiment, run_sweep
 
 pytestmark = pytest.mark.slow  # trains
 
 
 @pytest.fixture(scope="module")
-def layouts(library, small_result):
-    """The same runs in each layout: three runs (padded to four on two devices), and one."""
-    schedules = [library["human"], library["extinction-50"], library["smol"]]
+def layouts(mixed_sweep):
+    """The runs of the mixed sweep in each layout, and its first run alone."""
+    schedules = [smol_dsl.load(name) for name in MIXED_SWEEP]
     one, two = jax.devices()[:1], jax.devices()
     assert len(two) == 2
+    _, _, on_two = mixed_sweep  # one run at a time on each device
     runs = {
-        name: run_sweep("walker2d", schedules, [0], CONFIG, devices=devices, runs_per_step=per_step)
-        for name, devices, per_step in (
-            ("one", one, -1),
-            ("two", two, -1),
-            ("two-vmapped", two, None),
-        )
+        "one": run_sweep("walker2d", schedules, [0], CONFIG, devices=one),
+        "two": on_two,
+        "two-vmapped": run_sweep("walker2d", schedules, [0], CONFIG, devices=two, runs_per_step=None),
     }
-    runs["one-run"] = runs["one"][:1]  # a run of a sweep is the run alone (test_sweep)
-    runs["one-run-two-devices"] = [small_result]  # its population is split between them
+    runs["one-run"] = runs["one"][:1]  # a run of a sweep is the run alone (test_sweep, test_channel_runs)
+    runs["one-run-two-devices"] = [run_experiment("walker2d", schedules[0], CONFIG)]  # its population split
     return runs
 
 
