@@ -3,7 +3,7 @@
 `smol-dsl run` is one run of it and `smol-dsl sweep` many. Every run has the same task and
 settings but its own seed, schedule and archive, and all runs reach their phase boundaries
 together. So the same programs advance every run by one generation (`RunStep.generation`)
-and re-evaluate every archive (`RunStep.reevaluate_chunk`), with each run's body (a (C,)
+and re-evaluate every archive (`RunStep.pick`, `score`, `insert`), with each run's body (a (C,)
 array of the factors of the schedules' channels: plain gear's alpha, mass, friction, ...) a
 traced input. A step is compiled in its parts (`RunStep`): choosing the batch, scoring it
 and inserting the results, so that generations and re-evaluations share one scoring

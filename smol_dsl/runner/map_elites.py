@@ -9,10 +9,11 @@ run of any number of phases compiles the same few programs:
   `ask`), or fresh policies when the archive is empty (reseeding); the task's rollouts in
   the body; insertion into the CVT archive (QDax's `tell`) after non-finite results are
   dropped;
-- `reevaluate_chunk`: at a phase boundary, every filled cell is scored again in the new
-  body, elites die with the schedule's extinction probability, and the survivors go into a
-  fresh archive (collisions keep the best). It runs in fixed-size chunks over the filled
-  cells only (`reevaluation_chunks`), so its cost is proportional to the filled cells.
+- re-evaluation: at a phase boundary, every filled cell is scored again in the new body,
+  elites die with the schedule's extinction probability, and the survivors go into a fresh
+  archive (collisions keep the best): `pick` a chunk of elites, `score` it, `insert` the
+  survivors. It runs in fixed-size chunks over the filled cells only
+  (`reevaluation_chunks`), so its cost is proportional to the filled cells.
 
 Both are a choice of batch, the same scoring and an insertion (`RunStep`'s parts), which
 the engine compiles separately so that the scoring is compiled once.
@@ -131,8 +132,8 @@ class RunStep:
     Each step is three parts: choosing a batch (`ask` offspring, or `pick` elites to
     re-evaluate), `score` and inserting the results (`tell`, or `insert` survivors). The
     engine compiles each part as its own program, so that the rollout, nearly all of the
-    compilation, is one program that generations and re-evaluations share;
-    `generation` and `reevaluate_chunk` are the whole steps, as one function."""
+    compilation, is one program that generations and re-evaluations share; `generation`
+    is the whole generation as one function (for loops of your own, as QDax's)."""
 
     map_elites: MAPElites
     init_policies: Callable[[jax.Array, int], Any]
@@ -191,25 +192,6 @@ class RunStep:
         finite, into `fresh`; returns it and how many valid ones were non-finite."""
         survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
         return insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
-
-    def reevaluate_chunk(
-        self,
-        fresh: MapElitesRepertoire,
-        source: Any,
-        index: jax.Array,
-        valid: jax.Array,
-        body: jax.Array,
-        start: Any,
-        extinction: jax.Array,
-        key: jax.Array,
-    ) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
-        """Re-score one chunk of the elites of `source` (genotypes at `index`, `valid` ones
-        real) in `body`; those that survive extinction and score finite go into `fresh`.
-        Returns the archive, the run's next key and how many valid ones were non-finite."""
-        genotypes, key, death_key = self.pick(source, index, key)
-        fitnesses, descriptors = self.score(genotypes, body, start)
-        fresh, dropped = self.insert(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
-        return fresh, key, dropped
 
 
 def cvt_centroids(
