@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from qdax_reference import qdax_scores
 
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.tasks import TASK_NAMES, make_task, task_spec
@@ -55,16 +56,7 @@ def start(task):
 
 def hand_edited_scores(task, params, edit):
     """QDax's walker2d_uni scoring of policies in a Brax env whose sys `edit` changed (reset in it)."""
-    import qdax.tasks.brax.v2 as qdax_envs
-    from qdax.tasks.brax.descriptor_extractors import get_feet_contact_proportion
-    from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
-
-    env = qdax_envs.create("walker2d_uni", episode_length=EPISODE)
-    env.unwrapped.sys = edit(env.unwrapped.sys)
-    key = jax.random.key(3)
-    score = create_brax_scoring_fn(env, task.policy, get_feet_contact_proportion, key, episode_length=EPISODE)
-    fitnesses, descriptors, _ = score(params, key)
-    return np.asarray(fitnesses), np.asarray(descriptors)
+    return qdax_scores("walker2d_uni", task, params, episode_length=EPISODE, edit=edit)
 
 
 def heavier(k):

@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from qdax_reference import qdax_scores
 
 from smol_dsl.tasks import TaskSpec, make_task, register, task_names, task_spec
 from smol_dsl.tasks.base import deterministic_init_state
@@ -21,24 +22,14 @@ def qdax_start(task):
 
 
 def _qdax_scores(qdax_name, task, params, gear_scale=None, feet=None):
-    import qdax.tasks.brax.v2 as qdax_envs
-    from qdax.tasks.brax.descriptor_extractors import get_feet_contact_proportion
-    from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
-    from qdax.tasks.brax.v2.wrappers.locomotion_wrappers import FeetContactWrapper
+    """QDax's scoring (qdax_reference); with `gear_scale`, in the plain Brax env with its
+    actuators' gear multiplied; with `feet`, QDax's feet-contact wrapper told which links are the feet."""
 
-    env = qdax_envs.create(qdax_name, episode_length=EPISODE)
-    if gear_scale is not None:  # the plain Brax env with its actuators' gear multiplied
-        base = env.unwrapped
-        base.sys = base.sys.replace(actuator=base.sys.actuator.replace(gear=base.sys.actuator.gear * gear_scale))
-    if feet is not None:  # QDax's feet-contact wrapper, told which links are the feet
-        wrapper = env
-        while not isinstance(wrapper, FeetContactWrapper):
-            wrapper = wrapper.env
-        wrapper._feet_idx = jnp.asarray(feet)
-    key = jax.random.key(3)
-    score = create_brax_scoring_fn(env, task.policy, get_feet_contact_proportion, key, episode_length=EPISODE)
-    fitnesses, descriptors, _ = score(params, key)
-    return np.asarray(fitnesses), np.asarray(descriptors)
+    def scaled(sys):
+        return sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * gear_scale))
+
+    edit = None if gear_scale is None else scaled
+    return qdax_scores(qdax_name, task, params, episode_length=EPISODE, edit=edit, feet=feet)
 
 
 @pytest.mark.parametrize(("fixture", "qdax_name"), [("walker", "walker2d_uni"), ("cheetah", "halfcheetah_uni")])
