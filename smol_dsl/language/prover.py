@@ -153,18 +153,32 @@ def _iv_exact(value: sp.Rational) -> Any:
     return iv.mpf(int(value.p)) / iv.mpf(int(value.q))
 
 
-def _iv_value(expr: sp.Expr, x: Any) -> Any:
-    """expr evaluated by rigorous interval arithmetic (mpmath.iv, outward rounding) for t in x."""
+IntervalFunction = Callable[[Any], Any]
+"""An expression of t compiled for interval arithmetic: the interval of t to the interval of
+the expression."""
+CompileOperation = Callable[[sp.Expr, tuple[IntervalFunction, ...]], IntervalFunction]
+"""An operation's compiler: from the expression and its arguments' functions, its own."""
+
+
+@functools.lru_cache(maxsize=64)
+def interval_function(expr: sp.Expr) -> IntervalFunction:
+    """expr compiled once for rigorous interval arithmetic (mpmath.iv, outward rounding): its
+    tree walked and its constants converted here, not at each of the many sub-intervals an
+    enclosure evaluates. A _NoEnclosureError for an operation the arithmetic lacks."""
     if expr == T:
-        return x
+        return _identity
     constant = _iv_constant(expr)
     if constant is not None:
-        return constant
-    args = [_iv_value(arg, x) for arg in expr.args]
-    for kind, apply in _IV_OPERATIONS:
+        return lambda x: constant
+    args = tuple(interval_function(arg) for arg in expr.args)
+    for kind, compile_operation in _IV_OPERATIONS:
         if isinstance(expr, kind):
-            return apply(expr, args)
+            return compile_operation(expr, args)
     raise _NoEnclosureError(type(expr).__name__)
+
+
+def _identity(x: Any) -> Any:
+    return x
 
 
 def _iv_constant(expr: sp.Expr) -> Any | None:
@@ -180,43 +194,70 @@ def _iv_constant(expr: sp.Expr) -> Any | None:
     return None
 
 
-def _iv_power(expr: sp.Expr, args: list[Any]) -> Any:
+def _iv_power(expr: sp.Expr, args: tuple[IntervalFunction, ...]) -> IntervalFunction:
     base, exponent = args
     power = expr.args[1]
     if power.is_Integer:
         n = int(power)
-        return base**n if n >= 0 else 1 / base**-n
+        if n >= 0:
+            return lambda x: base(x) ** n
+        return lambda x: 1 / base(x) ** -n
     if power == sp.Rational(1, 2):
-        return iv.sqrt(base)
-    return iv.exp(exponent * iv.log(base))
+        return lambda x: iv.sqrt(base(x))
+
+    def general(x: Any) -> Any:
+        b, e = base(x), exponent(x)  # both evaluated, in order, as for every operation
+        return iv.exp(e * iv.log(b))
+
+    return general
 
 
-def _iv_min_max(expr: sp.Expr, args: list[Any]) -> Any:
+def _iv_min_max(expr: sp.Expr, args: tuple[IntervalFunction, ...]) -> IntervalFunction:
     pick = min if isinstance(expr, sp.Min) else max
-    return iv.mpf([pick(a.a for a in args), pick(a.b for a in args)])
+
+    def extreme(x: Any) -> Any:
+        values = [f(x) for f in args]
+        return iv.mpf([pick(a.a for a in values), pick(a.b for a in values)])
+
+    return extreme
 
 
-_IV_OPERATIONS: tuple[tuple[type | tuple[type, ...], Callable[[sp.Expr, list[Any]], Any]], ...] = (
-    (sp.Add, lambda expr, args: functools.reduce(operator.add, args)),
-    (sp.Mul, lambda expr, args: functools.reduce(operator.mul, args)),
+def _iv_reduce(combine: Callable[[Any, Any], Any]) -> CompileOperation:
+    def compile_operation(expr: sp.Expr, args: tuple[IntervalFunction, ...]) -> IntervalFunction:
+        return lambda x: functools.reduce(combine, [f(x) for f in args])
+
+    return compile_operation
+
+
+def _iv_unary(apply: Callable[[Any], Any]) -> CompileOperation:
+    def compile_operation(expr: sp.Expr, args: tuple[IntervalFunction, ...]) -> IntervalFunction:
+        (arg,) = args
+        return lambda x: apply(arg(x))
+
+    return compile_operation
+
+
+_IV_OPERATIONS: tuple[tuple[type | tuple[type, ...], CompileOperation], ...] = (
+    (sp.Add, _iv_reduce(operator.add)),
+    (sp.Mul, _iv_reduce(operator.mul)),
     (sp.Pow, _iv_power),
-    (sp.exp, lambda expr, args: iv.exp(args[0])),
-    (sp.log, lambda expr, args: iv.log(args[0])),
-    (sp.sin, lambda expr, args: iv.sin(args[0])),
-    (sp.cos, lambda expr, args: iv.cos(args[0])),
+    (sp.exp, _iv_unary(iv.exp)),
+    (sp.log, _iv_unary(iv.log)),
+    (sp.sin, _iv_unary(iv.sin)),
+    (sp.cos, _iv_unary(iv.cos)),
     # tanh(x) = 1 - 2 / (exp(2x) + 1): x appears once, so the enclosure stays tight
-    (sp.tanh, lambda expr, args: 1 - 2 / (iv.exp(2 * args[0]) + 1)),
-    (sp.Abs, lambda expr, args: abs(args[0])),
+    (sp.tanh, _iv_unary(lambda a: 1 - 2 / (iv.exp(2 * a) + 1))),
+    (sp.Abs, _iv_unary(abs)),
     ((sp.Min, sp.Max), _iv_min_max),
 )
-"""Each operation of the language on intervals, from its arguments' intervals."""
+"""Each operation of the language on intervals: from its arguments' compiled functions, its own."""
 
 
 def interval_value(expr: sp.Expr, start: sp.Rational, end: sp.Rational) -> tuple[float, float] | None:
     """(low, high) enclosing expr(t) for every t in [start, end], or None if it cannot be bounded."""
     x = iv.mpf([_iv_exact(start).a, _iv_exact(end).b])
     try:
-        value = _iv_value(expr, x)
+        value = interval_function(expr)(x)
     except (_NoEnclosureError, ValueError, ZeroDivisionError, TypeError):
         return None
     low, high = float(value.a), float(value.b)
