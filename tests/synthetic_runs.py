@@ -16,6 +16,7 @@ import numpy as np
 from smol_dsl import rundir
 from smol_dsl.cli import main
 from smol_dsl.rundir import ARCHIVE_FILE, METRICS_FILE, MetricsLog, write_archive
+from smol_dsl.rundir.archive import policy_shapes
 from smol_dsl.runner import preset_config
 from smol_dsl.tasks import task_spec
 
@@ -33,26 +34,24 @@ def write_run(
     *,
     task: str = "walker2d",
     finished: bool = True,
-    channels: bool = False,
     **overrides: object,
 ) -> Path:
     """A run directory in the runner's format (written by smol_dsl.rundir's writers) whose
-    last row has the given final scores. Its certificate.json holds the schedule's name and
-    tail start, and metrics.csv an `alpha` of 1; with `channels`, certificate.json is the
-    runner's (the channels and final body too) and metrics.csv has a column per scheduled
-    channel, its factor in the row's phase."""
+    last row has the given final scores: the runner's certificate.json, metrics.csv with a
+    column per scheduled channel (its factor in the row's phase; `alpha` is 1 unless plain
+    gear is scheduled) and an archive of zero policies of the task's network's shapes whose
+    elites score what the last row says (`final_archive`)."""
     config = preset_config(task, "quick", seed=seed, **{**SETTINGS, **overrides})
     sched = library[schedule]
     directory.mkdir(parents=True)
     (directory / "config.json").write_text(config.to_json())
     (directory / "schedule.sched").write_text(sched.source)
-    certificate = rundir.certificate_record(sched) if channels else {"name": sched.name}
-    certificate["tail_start"] = float(sched.tail_start)
-    (directory / "certificate.json").write_text(json.dumps(certificate))
-    schema = rundir.metrics_schema(sched.channels) if channels else rundir.METRICS_SCHEMA
-    bodies = sched.checked_phase_values(config.num_phases) if channels else None
+    (directory / "certificate.json").write_text(json.dumps(rundir.certificate_record(sched)))
+    schema = rundir.metrics_schema(sched.channels)
+    bodies = sched.checked_phase_values(config.num_phases)
     last = config.generations if finished else config.generations // 2
     rng = np.random.default_rng(seed)
+    fitnesses, scores = final_archive(rng, task, config, final) if finished else (None, {})
     rows = []
     for generation in range(last + 1):
         phase = config.phase_of_generation(generation) if generation else 0
@@ -68,24 +67,49 @@ def write_run(
             "qd_score": rng.uniform(0, 1000),
             "non_finite": 0,
         }
-        if bodies is not None:
-            row.update(rundir.body_columns(sched.channels, bodies[phase]))
+        row.update(rundir.body_columns(sched.channels, bodies[phase]))
         if generation == last:
-            row.update(final)
+            row.update({**final, **scores})
         rows.append(row)
     MetricsLog(directory / METRICS_FILE, rows, schema)
     cells = config.num_centroids
-    fitnesses = np.where(rng.uniform(size=cells) < 0.3, rng.uniform(0, 100, cells), -np.inf)
+    if fitnesses is None:
+        fitnesses = np.where(rng.uniform(size=cells) < 0.3, rng.uniform(0, 100, cells), -np.inf)
     write_archive(
         directory / ARCHIVE_FILE,
         {
-            "genotypes/params/Dense_0/kernel": np.zeros((cells, 2, 2)),
+            **{name: np.zeros(shape, np.float32) for name, shape in policy_shapes(task, config, cells).items()},
             "fitnesses": fitnesses,
             "descriptors": rng.uniform(size=(cells, task_spec(task).descriptor_size)),
             "centroids": rng.uniform(size=(cells, task_spec(task).descriptor_size)),
         },
     )
     return directory
+
+
+def final_archive(rng: np.random.Generator, task: str, config, final: dict[str, float]):
+    """Fitnesses of a final archive (-inf in empty cells) whose coverage and max fitness are
+    `final`'s where given (a coverage must be a whole number of cells), and the final row's
+    scores as QDax computes them from it (float32, the task's QD offset)."""
+    cells = config.num_centroids
+    if "coverage" in final:
+        count = final["coverage"] * cells / 100
+        assert count == round(count) and count >= 1, f"coverage {final['coverage']} is no whole number of {cells} cells"
+        count = round(count)
+    else:
+        count = int(rng.integers(1, cells // 2))
+    values = rng.uniform(1, 100, count).astype(np.float32)
+    if "max_fitness" in final:
+        values = (values - values.max() + np.float32(final["max_fitness"])).astype(np.float32)
+    fitnesses = np.full(cells, -np.inf, np.float32)
+    fitnesses[rng.choice(cells, count, replace=False)] = values
+    offset = np.float32(task_spec(task).reward_offset * config.episode_length)
+    scores = {
+        "coverage": float(np.float32(100) * np.mean(fitnesses > -np.inf, dtype=np.float32)),
+        "max_fitness": float(values.max()),
+        "qd_score": float(np.sum(values, dtype=np.float32) + offset * np.float32(count)),
+    }
+    return fitnesses, scores
 
 
 SCHEDULES = ("smol", "vanilla")

@@ -96,6 +96,27 @@ def test_raw_uint32_keys_work_too(library):
     assert values.shape == (100,)
 
 
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (lambda s: s.phase_values(10, channels=()), ValueError, "channels is empty"),
+        (lambda s: s.phase_values(10, channels="mass"), TypeError, "for one channel write ('mass',)"),
+        (lambda s: s.phase_values(10, channels=("mass", "mass")), ValueError, "names mass twice"),
+        (lambda s: s.phase_value(3, 10, channels="gear"), TypeError, "a sequence of channels"),
+        (lambda s: s.curve(None), TypeError, "a channel is a Channel or its name"),
+        (lambda s: s.curve("strength"), ValueError, "'strength' is not a channel"),
+        (lambda s: s.final_differences("leg-damage"), TypeError, "takes a Schedule"),
+        (lambda s: s.phase_values(10, key=123), TypeError, "key is one JAX random key"),
+        (lambda s: s.alpha(0.5, key=np.zeros(3)), TypeError, "not an array of float64[3]"),
+        (lambda s: s.phase_alphas(10, key=jax.random.split(jax.random.key(0))), TypeError, "one JAX random key"),
+    ],
+)
+def test_wrong_arguments_get_a_clear_error_saying_what_to_pass(library, call, error, message):
+    with pytest.raises(error) as caught:
+        call(library["growth"])
+    assert message in str(caught.value)
+
+
 def test_phase_alpha_compiles_once_for_every_phase(library):
     human = library["human"]
     phase_alpha = jax.jit(lambda k: human.phase_alpha(k, 100))

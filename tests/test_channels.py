@@ -4,6 +4,8 @@ certificates, `Schedule.curve`, `phase_values`, `check_targets`, and the CLI's `
 
 from __future__ import annotations
 
+import io
+import re
 import zlib
 from pathlib import Path
 
@@ -86,10 +88,51 @@ def test_indentation_is_optional_and_lets_are_global():
     assert schedule.phase_values(10)[0].tolist() == [0.75, 0.5]
 
 
-def test_targets_in_any_order_are_one_channel_written_as_declared():
-    schedule = smol_dsl.parse("channel mass[thigh, torso]\n0% .. 100%: tail\n")
-    assert schedule.channels == (Channel("mass", ("thigh", "torso")),)
-    assert schedule.channels[0].name == "mass[thigh,torso]"
+def test_targets_in_any_order_are_one_channel_with_one_name():
+    schedule = smol_dsl.parse("channel mass[torso, thigh]\n0% .. 100%: tail\n")
+    assert schedule.channels == (Channel("mass", ("thigh", "torso")),) == (Channel("mass", ("torso", "thigh")),)
+    assert schedule.channels[0].name == "mass[thigh,torso]" == Channel.parse("mass[torso, thigh]").name
+
+
+RANDOM_MASS = "channel mass[{}]\n0% .. 90%: random 0.5 .. 1.5 every 10%\n90% .. 100%: tail\n"
+
+
+def test_a_channel_is_the_same_in_the_api_however_its_targets_are_ordered():
+    written, reordered = (smol_dsl.parse(RANDOM_MASS.format(t)) for t in ("torso, thigh", "thigh,torso"))
+    key = jax.random.key(7)
+    # the random draws come from the canonical name, not the order written
+    assert np.array_equal(written.phase_values(20, key), reordered.phase_values(20, key))
+    for spelling in ("mass[thigh,torso]", "mass[torso, thigh]", Channel("mass", ("torso", "thigh"))):
+        assert written.curve(spelling) is written.curve(written.channels[0])
+        column = written.phase_values(20, key, channels=(spelling,))[:, 0]
+        assert np.array_equal(column, written.phase_values(20, key)[:, 0])
+        assert not np.all(np.asarray(column) == 1)
+
+
+def test_a_channel_the_file_lacks_is_an_error_unless_the_api_says_it_is_one(three, library):
+    with pytest.raises(ValueError, match=r"declares no channel mass\[torso\]; it declares mass, gear"):
+        three.curve("mass[torso]")
+    assert float(three.curve("friction", or_standard=True).value(0.3)) == 1.0
+    # documented: phase_values of chosen channels gives 1 for one the file lacks, and alpha is
+    # 1 throughout in a file that does not schedule plain gear
+    assert np.all(np.asarray(three.phase_values(5, channels=("friction",))) == 1)
+    assert np.all(np.asarray(library["low-gravity"].phase_alphas(5)) == 1)
+
+
+@pytest.mark.parametrize(
+    "name, error, message",
+    [
+        ("mass[torso,torso]", ValueError, "names 'torso' twice"),
+        ("mass[torso,,thigh]", ValueError, "empty"),
+        ("friction[torso]", ValueError, "takes no targets"),
+        ("strength", ValueError, "not a channel"),
+        (None, TypeError, "not None"),
+        (3, TypeError, "not 3"),
+    ],
+)
+def test_channel_names_that_are_no_channel_are_refused(name, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        Channel.parse(name)
 
 
 def test_curve_takes_a_channel_or_its_name(three):
@@ -125,7 +168,7 @@ ERRORS = {
     ),
     "targets reordered twice": (
         "channel gear[a, b]\n0% .. 100%: tail\nchannel gear[b,a]\n0% .. 100%: tail\n",
-        3, 1, 17, "is given twice (first on line 1)", "merge",
+        3, 1, 17, "`channel gear[a, b]` is given twice (first on line 1, and here as `gear[b, a]`)", "any order",
     ),
     "gear after implicit gear": (
         "\n0% .. 100%: tail\nchannel gear\n0% .. 100%: tail\n",
@@ -319,7 +362,7 @@ def test_a_file_without_plain_gear_has_alpha_one_throughout(library):
     assert np.all(np.asarray(leg.phase_alphas(50)) == 1.0) and float(leg.alpha(0.3)) == 1.0
     assert leg.certificate.tail_start == 0 and leg.certificate.channel == GEAR
     assert GEAR not in leg.certificates
-    assert leg.segments == leg.curve(GEAR).segments and len(leg.segments) == 1
+    assert leg.segments == leg.curve(GEAR, or_standard=True).segments and len(leg.segments) == 1
 
 
 def test_repr_mentions_the_channels(three, library):
@@ -567,3 +610,39 @@ def test_plot_cli_writes_a_multi_channel_figure(tmp_path, capsys):
     out = tmp_path / "channels.png"
     assert main(["plot", "growth", "leg-damage", "-o", str(out), "--phases", "20"]) == 0
     assert out.stat().st_size > 0 and "Growth, Leg damage" in capsys.readouterr().out
+
+
+def test_plot_seed_draws_what_run_seed_draws(tmp_path, monkeypatch, capsys, library):
+    """`plot random --seed 3` shows the alphas `run ... random --seed 3` trains under."""
+    from smol_dsl.results import figures
+    from smol_dsl.runner import preset_config
+    from smol_dsl.seeds import schedule_key
+
+    drawn = {}
+    monkeypatch.setattr(figures, "save_figure", lambda figure, out: drawn.setdefault("figure", figure))
+    assert main(["plot", "random", "--seed", "3", "--phases", "10", "-o", str(tmp_path / "r.png")]) == 0
+    steps = drawn["figure"].axes[0].get_lines()[0].get_ydata()[:-1]  # the step line, its last value repeated
+    config = preset_config("walker2d", seed=3, num_phases=10)
+    trained = library["random"].checked_phase_values(config.num_phases, schedule_key(config.seed), (GEAR,))[:, 0]
+    np.testing.assert_array_equal(steps, trained)
+    assert not np.array_equal(trained, np.asarray(library["random"].phase_alphas(10, jax.random.key(3))))
+
+
+def test_a_file_of_many_channels_plots_a_panel_per_kind_without_warnings(recwarn):
+    from smol_dsl.results.figures import schedule_figure
+
+    links = ("torso", "thigh", "leg", "foot", "thigh_left", "leg_left", "foot_left", "right_leg", "left_leg")
+    links += ("torso, thigh", "leg, foot")  # 11 mass channels: more than a legend inside a panel holds
+    sections = [f"channel mass[{link}]\n0% .. 90%: linear 1 -> 0.{k + 2:02d}\n{TAIL}" for k, link in enumerate(links)]
+    sections += [
+        f"channel gear[{g}]\n0% .. 90%: constant 1.{k + 1}\n{TAIL}" for k, g in enumerate(("left_leg", "right_leg"))
+    ]
+    many = smol_dsl.parse("".join(sections), path="many.sched")
+    figure = schedule_figure([many], num_phases=20)
+    assert [axes.get_ylabel() for axes in figure.axes] == ["mass (factor)", "gear (factor)"]
+    assert [len(axes.get_lines()) for axes in figure.axes] == [12, 3]  # the channels, and the line at 1
+    assert figure.axes[0].get_title() == "11 mass channels" and figure.axes[0].get_legend() is None
+    assert figure.axes[1].get_legend() is not None
+    assert figure.get_size_inches()[1] < 8
+    figure.savefig(io.BytesIO(), format="png")
+    assert not [w for w in recwarn if "legend" in str(w.message).lower()]

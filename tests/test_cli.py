@@ -210,3 +210,15 @@ def test_the_library_names_settings_and_the_command_line_its_options(library, tm
     assert main(["run", "walker2d", "human", "--evals", "100", "--out", str(tmp_path / "new")]) == 2
     assert capsys.readouterr().err.endswith("; use --evals 2688 or more, fewer --phases, or a smaller --batch-size\n")
     assert not (tmp_path / "new").exists()
+
+
+def test_a_dry_run_refuses_the_sweeps_that_training_would(tmp_path, capsys):
+    """--dry-run answers as the sweep would, before anything is sized or compiled."""
+    for folder, factor in (("a", "1.2"), ("b", "1.3")):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "mine.sched").write_text(f"0% .. 90%: constant {factor}\n90% .. 100%: tail\n")
+    for schedules in (["vanilla", "vanilla"], [str(tmp_path / "a" / "mine.sched"), str(tmp_path / "b" / "mine.sched")]):
+        code = main(["sweep", "walker2d", *schedules, "--dry-run", "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert code == 2 and "two runs of the sweep would share the directory" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()

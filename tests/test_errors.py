@@ -7,6 +7,7 @@ from checking import check_cli
 
 import smol_dsl
 from smol_dsl import ScheduleError
+from smol_dsl.cli import main
 
 TAIL = "90% .. 100%: tail\n"
 
@@ -145,6 +146,8 @@ CASES = {
     "extinction above one": ("extinction 150%\n0% .. 100%: tail\n", 1, 1, "outside 0 .. 1", "extinction 5%"),
     "negative extinction": ("extinction -0.1\n0% .. 100%: tail\n", 1, 1, "outside 0 .. 1", "probability"),
     "alpha beyond float32": ("0% .. 90%: constant 1e300\n" + TAIL, 1, 1, "beyond float32", "modest"),
+    "final beyond float32": ("final 1e39\n0% .. 100%: tail\n", 2, 1, "beyond float32", "modest"),
+    "channel final beyond float32": ("channel mass\nfinal 1e39\n0% .. 100%: tail\n", 3, 1, "mass = 1e+39", "modest"),
 }
 
 
@@ -265,3 +268,22 @@ def test_an_oversized_let_is_out_of_range_not_a_log_of_a_negative(tmp_path, caps
     assert code == 2
     assert "`let big` is 1.00E+600, out of range" in err
     assert "log" not in err and "square root" not in err
+
+
+def test_a_final_beyond_float32_is_a_located_refusal_in_every_command(tmp_path, capsys):
+    text = "channel mass\nfinal 1e39\n0% .. 100%: tail\n"
+    code, err = check_cli(tmp_path, text, capsys)
+    assert code == 2 and "hostile.sched:3:1: error:" in err and "beyond float32" in err
+    for command in (["run", "walker2d"], ["sweep", "walker2d"]):
+        code = main([*command, str(tmp_path / "hostile.sched"), "--dry-run", "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert code == 2 and "hostile.sched:3:1: error:" in err and "Traceback" not in err, err
+
+
+def test_lines_may_end_in_a_lone_carriage_return():
+    lf = "0% .. 90%: linear 1 -> 2\n90% .. 100%: tail\n"
+    schedule = smol_dsl.parse(lf.replace("\n", "\r"))
+    assert schedule.source == lf and schedule.segments == smol_dsl.parse(lf).segments
+    with pytest.raises(ScheduleError) as caught:
+        smol_dsl.parse("0% .. 90%: linear 1 -> 2\r90% .. 100%: oops\r", path="mac.sched")
+    assert (caught.value.line, caught.value.column) == (2, 14) and "unexpected 'oops'" in caught.value.message

@@ -68,7 +68,7 @@ def test_run_figures_draw_archives_of_any_dimension(tmp_path, library):
     ],
 )
 def test_the_body_panel_draws_each_scheduled_channel(tmp_path, library, schedule, columns, label):
-    run = read_run(write_run(tmp_path / "run", library, schedule, 0, {"max_fitness": 1.0}, channels=True))
+    run = read_run(write_run(tmp_path / "run", library, schedule, 0, {"max_fitness": 1.0}))
     body = metrics_figure(run, "t").axes[-1]
     assert [line.get_label() for line in body.get_lines()[: len(columns)]] == columns
     for line, column in zip(body.get_lines(), columns, strict=False):

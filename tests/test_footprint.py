@@ -123,6 +123,14 @@ def test_cli_dry_run_prints_the_estimate_and_runs_nothing(tmp_path, monkeypatch,
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_small_budget_s_rate_is_not_printed_as_zero(tmp_path, capsys):
+    flags = ["--evals", "208", "--batch-size", "16", "--phases", "10", "--centroids", "32", "--episode-length", "20"]
+    assert main(["run", "walker2d", "human", *flags, "--dry-run", "--out", str(tmp_path / "run")]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"to finish in 1 h: 0\.0\d+ evals/s \(1\.\d+ steps/s\)", err), err
+    assert " 0 evals/s" not in err
+
+
 def test_cli_refuses_a_sweep_whose_archives_cannot_fit(tmp_path, capsys):
     out = tmp_path / "sweep"
     code = main(["sweep", "ant_omni", *PAPER_SCHEDULES, "--seeds", "2000", "--preset", "paper", "--out", str(out)])

@@ -174,8 +174,9 @@ def check_error(error: smol_dsl.ScheduleError, text: str | None, path: str) -> N
     if error.hint:
         assert shown.endswith(f"\nhint: {error.hint}"), shown
     if error.span is not None and text is not None:
-        # the excerpt is the line the error points at (lines end with "\n", as the parser counts them)
-        lines = text.split("\n")
+        # the excerpt is the line the error points at (lines end with "\n", as the parser counts
+        # them, or with a lone "\r", which parse reads as one)
+        lines = re.sub(r"\r(?!\n)", "\n", text).split("\n")
         assert error.line <= max(1, len(lines)), (error.line, len(lines), shown)
         line = lines[error.line - 1].rstrip("\r") if error.line <= len(lines) else ""
         printable = "".join(c if c.isprintable() else "?" for c in line.expandtabs(1))

@@ -13,6 +13,7 @@ import errno
 import itertools
 import json
 import math
+import re
 import shutil
 import warnings
 from pathlib import Path
@@ -104,8 +105,8 @@ def test_large_samples_with_ties_use_the_normal_approximation(tmp_path, library)
     smol = [3.0, 5.0, 5.0, 7.0, 8.0, 9.0, 9.0, 10.0, 12.0]
     vanilla = [1.0, 2.0, 5.0, 5.0, 6.0, 7.0, 7.0, 8.0, 4.0]
     for seed, (a, b) in enumerate(zip(smol, vanilla, strict=True)):
-        write_run(tmp_path / f"s{seed}", library, "smol", seed, {"coverage": a})
-        write_run(tmp_path / f"v{seed}", library, "vanilla", seed, {"coverage": b})
+        write_run(tmp_path / f"s{seed}", library, "smol", seed, {"coverage": a}, num_centroids=100)
+        write_run(tmp_path / f"v{seed}", library, "vanilla", seed, {"coverage": b}, num_centroids=100)
     table = pvalue_table(load_runs([tmp_path]), "coverage")
     assert table.pvalues["Vanilla MAP-Elites"]["SMOL"] == pytest.approx(normal_one_sided_p(smol, vanilla), rel=1e-9)
 
@@ -242,15 +243,131 @@ def test_refuses_runs_of_the_same_settings_that_log_different_steps(tmp_path, li
 
 def test_refuses_schedules_that_end_on_different_bodies(tmp_path, library):
     plain = write_run(tmp_path / "a", library, "smol", 0, {"max_fitness": 1.0})
-    damaged = write_run(tmp_path / "b", library, "leg-damage", 0, {"max_fitness": 1.0}, channels=True)
+    damaged = write_run(tmp_path / "b", library, "leg-damage", 0, {"max_fitness": 1.0})
     with pytest.raises(ReportError) as caught:
         load_runs([tmp_path])
     assert str(caught.value).startswith(
-        f"Leg damage and SMOL end on different bodies: channel gear[left_leg] ends at 0.5 in Leg damage ({damaged}) "
-        f"and at 1 in SMOL ({plain}); final scores are only comparable on the same final body"
+        f"Leg damage and SMOL end on different bodies: thigh_left_joint's gear factor ends at 0.5 in Leg damage "
+        f"({damaged}) and at 1 in SMOL ({plain}); final scores are only comparable on the same final body"
     )
-    write_run(tmp_path / "c", library, "growth", 0, {"max_fitness": 1.0}, channels=True)  # ends on the standard body
+    write_run(tmp_path / "c", library, "growth", 0, {"max_fitness": 1.0})  # ends on the standard body
     assert list(load_runs([tmp_path / "a", tmp_path / "c"])) == ["SMOL", "Growth"]
+
+
+def test_bodies_are_compared_part_by_part_however_the_files_spell_them(tmp_path, library):
+    """leg-damage's `gear[left_leg]` and a copy naming the left leg's three joints end on one body."""
+    joints = library["leg-damage"].source.replace(
+        "gear[left_leg]", "gear[thigh_left_joint, leg_left_joint, foot_left_joint]"
+    )
+    spelled = {"joints": smol_dsl.parse(joints.replace('name "Leg damage"', 'name "Leg damage by joints"'))}
+    write_run(tmp_path / "a", library, "leg-damage", 0, {"max_fitness": 1.0})
+    write_run(tmp_path / "b", spelled, "joints", 0, {"max_fitness": 2.0})
+    assert sorted(load_runs([tmp_path])) == ["Leg damage", "Leg damage by joints"]
+
+
+# ---------------------------------------------------------------- derived, not believed
+
+
+def edit_json(path: Path, **changes: object) -> None:
+    data = json.loads(path.read_text())
+    data.update(changes)
+    path.write_text(json.dumps(data))
+
+
+def test_a_config_naming_another_task_is_refused_by_the_archive_s_shapes(tmp_path, library):
+    run = write_run(tmp_path / "a", library, "vanilla", 0, {"max_fitness": 1.0})
+    edit_json(run / "config.json", task="ant_omni")  # 2 descriptors too, but 27 observations and 8 actions
+    with pytest.raises(ReportError) as caught:
+        load_runs([run])
+    assert str(caught.value).startswith(
+        f"{run / 'archive.npz'}: genotypes/params/Dense_0/kernel has shape (32, 17, 64), but ant_omni's network "
+        "in config.json gives (32, 27, 64)"
+    )
+
+
+def test_a_config_naming_a_task_of_the_same_network_is_refused_by_the_qd_score(tmp_path, library):
+    """halfcheetah's policies have walker2d's shapes; its QD score's offset per cell does not."""
+    run = write_run(tmp_path / "a", library, "vanilla", 0, {"max_fitness": 1.0})
+    edit_json(run / "config.json", task="halfcheetah")
+    with pytest.raises(ReportError) as caught:
+        load_runs([run])
+    assert re.match(
+        rf"{re.escape(str(run / 'metrics.csv'))}: its last row's qd_score \(-?[\d.]+\) is not what the elites of "
+        r"archive.npz score under config.json's task halfcheetah \(-?[\d.]+\); the files are from different runs",
+        str(caught.value),
+    ), caught.value
+
+
+@pytest.mark.parametrize("score", ["coverage", "max_fitness", "qd_score"])
+def test_final_scores_that_the_archive_does_not_give_are_refused(tmp_path, library, score):
+    run = write_run(tmp_path / "a", library, "vanilla", 0, {"max_fitness": 1.0})
+    rows = read_metrics(run / "metrics.csv")
+    rows[-1][score] += 1.0
+    MetricsLog(run / "metrics.csv", rows)
+    with pytest.raises(ReportError, match=f"its last row's {score} "):
+        load_runs([run])
+
+
+def test_a_config_whose_task_lacks_the_schedule_s_body_is_refused(tmp_path, library):
+    run = write_run(tmp_path / "a", library, "leg-damage", 0, {"max_fitness": 1.0})
+    edit_json(run / "config.json", task="hopper")
+    with pytest.raises(ReportError, match=r"schedule.sched:8:14: error: task hopper has no actuators named `left_leg`"):
+        load_runs([run])
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        (
+            "final_body",
+            {},
+            "its 'final_body' (none (every factor 1)) is not what schedule.sched proves (gear[left_leg] 0.5)",
+        ),
+        ("channels", {"gear": None}, "its 'channels' (gear) is not what schedule.sched proves (gear[left_leg])"),
+        ("tail_start", 0.5, "its 'tail_start' (0.5) is not what schedule.sched proves (0.9)"),
+    ],
+)
+def test_a_certificate_that_disagrees_with_its_schedule_is_refused(tmp_path, library, field, value, message):
+    run = write_run(tmp_path / "a", library, "leg-damage", 0, {"max_fitness": 1.0})
+    edit_json(run / "certificate.json", **{field: value})
+    with pytest.raises(ReportError) as caught:
+        load_runs([run])
+    assert str(caught.value).startswith(f"{run / 'certificate.json'}: {message}"), caught.value
+
+
+def edit_columns(path: Path, edit) -> None:
+    with open(path, newline="") as file:
+        rows = list(csv.reader(file))
+    with open(path, "w", newline="") as file:
+        csv.writer(file).writerows(edit(rows))
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda rows: [row[:3] + row[4:] for row in rows], "the header lacks the column(s) mass"),
+        (lambda rows: [[*rows[0][:3], "mass[torso]", *rows[0][4:]], *rows[1:]], "the header lacks the column(s) mass"),
+        (lambda rows: [[*row, row[3]] for row in rows], "names a column twice"),
+        (lambda rows: [rows[0] + ["friction"], *([*row, "1.0"] for row in rows[1:])], "does not schedule"),
+        (lambda rows: [rows[0] + ["mass[ torso]"], *([*row, "1.0"] for row in rows[1:])], "does not schedule"),
+    ],
+    ids=["deleted", "renamed", "doubled", "another channel", "another spelling"],
+)
+def test_metrics_columns_are_the_schedule_s_channels(tmp_path, library, edit, message):
+    run = write_run(tmp_path / "a", library, "growth", 0, {"max_fitness": 1.0})  # columns alpha, mass
+    assert (run / "metrics.csv").read_text().startswith("generation,phase,alpha,mass,")
+    edit_columns(run / "metrics.csv", edit)
+    with pytest.raises(ReportError) as caught:
+        load_runs([run])
+    assert f"{run / 'metrics.csv'}:1: the header" in str(caught.value) and message in str(caught.value)
+
+
+def test_a_metrics_file_with_a_byte_order_mark_is_read(tmp_path, library):
+    run = write_run(tmp_path / "a", library, "vanilla", 0, {"max_fitness": 1.0})
+    path = run / "metrics.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())  # as a spreadsheet saves UTF-8
+    (runs,) = load_runs([run]).values()
+    assert runs[0].final["max_fitness"] == 1.0
 
 
 def test_many_unusable_run_directories_are_listed_up_to_five(tmp_path, library):

@@ -37,6 +37,7 @@ from smol_dsl.rundir import (
     read_run,
     write_archive,
 )
+from smol_dsl.rundir.archive import policy_shapes
 
 
 @pytest.fixture(scope="module")
@@ -140,9 +141,9 @@ def test_archive_round_trip_without_jax(tmp_path, library):
     cells = config.num_centroids
     rng = np.random.default_rng(0)
     fitnesses = np.where(rng.uniform(size=(cells, 1)) < 0.5, rng.uniform(size=(cells, 1)), -np.inf)
+    policies = policy_shapes("walker2d", config, cells)  # 17 observations -> 64 -> 64 -> 6 actions
     arrays = {
-        "genotypes/params/Dense_0/kernel": rng.normal(size=(cells, 3, 4)).astype(np.float32),
-        "genotypes/params/Dense_0/bias": rng.normal(size=(cells, 4)).astype(np.float32),
+        **{name: rng.normal(size=shape).astype(np.float32) for name, shape in policies.items()},
         "fitnesses": fitnesses,  # (C, 1), as QDax keeps them
         "descriptors": rng.uniform(size=(cells, 2)),
         "centroids": rng.uniform(size=(cells, 2)),
@@ -152,7 +153,7 @@ def test_archive_round_trip_without_jax(tmp_path, library):
     assert archive.fitnesses.shape == (cells,)
     np.testing.assert_array_equal(archive.filled, fitnesses.reshape(-1) > -np.inf)
     elite = archive.elite(archive.best_cell)
-    assert elite["params"]["Dense_0"]["kernel"].shape == (3, 4)
+    assert elite["params"]["Dense_0"]["kernel"].shape == (17, 64) and elite["params"]["Dense_2"]["bias"].shape == (6,)
     np.testing.assert_array_equal(
         elite["params"]["Dense_0"]["bias"], arrays["genotypes/params/Dense_0/bias"][archive.best_cell]
     )
@@ -160,6 +161,10 @@ def test_archive_round_trip_without_jax(tmp_path, library):
     np.testing.assert_array_equal(checked.fitnesses, archive.fitnesses)
     with pytest.raises(ValueError, match="unknown array"):
         write_archive(tmp_path / "x.npz", {**arrays, "extra": np.zeros(1)})
+    del arrays["genotypes/params/Dense_2/bias"]  # another network's policies
+    write_archive(run / rundir.ARCHIVE_FILE, arrays)
+    with pytest.raises(RunDirectoryError, match=r"Dense_2/bias differs\); the archive is of another task or network"):
+        read_final_archive(run, config)
 
 
 def test_runner_docs_hold_the_format_tables():
@@ -337,15 +342,16 @@ def test_the_certificate_names_the_channels_and_the_final_body(tmp_path, library
     plain = write_run(tmp_path / "plain", library, "human", 0, {"max_fitness": 1.0})
     certificate = rundir.read_certificate(plain / "certificate.json")  # no "channels", no "final_body"
     assert certificate.channels == (GEAR,) and certificate.final_body == {}
-    damaged = write_run(tmp_path / "damage", library, "leg-damage", 0, {"max_fitness": 1.0}, channels=True)
+    damaged = write_run(tmp_path / "damage", library, "leg-damage", 0, {"max_fitness": 1.0})
     run = read_run(damaged)
     assert run.channels == (Channel("gear", ("left_leg",)),) and run.final_body == {"gear[left_leg]": 0.5}
     assert [row["gear[left_leg]"] for row in run.rows][-1] == 0.5 and run.rows[-1]["alpha"] == 1.0
 
 
 # ---------------------------------------------------------------------------- import weight
-def test_reading_a_run_directory_loads_neither_jax_nor_sympy(tmp_path, library):
-    run = write_run(tmp_path / "run", library, "growth", 0, {"max_fitness": 1.0}, channels=True)
+def test_reading_a_run_directory_loads_no_jax(tmp_path, library):
+    """read_run verifies schedule.sched again (sympy and Lark), but never loads JAX or Brax."""
+    run = write_run(tmp_path / "run", library, "growth", 0, {"max_fitness": 1.0})
     code = f"""
 from pathlib import Path
 from smol_dsl.rundir import load_archive, read_config, read_final_archive, read_metrics, read_run
@@ -355,6 +361,6 @@ config = read_config(run / "config.json")
 assert record.finished and record.archive is not None and config == record.config
 assert read_metrics(run / "metrics.csv", config) == record.rows and "mass" in record.rows[0]
 assert read_final_archive(run, config).fitnesses.shape == (config.num_centroids,)
-assert load_archive(run).genotypes["params"]["Dense_0"]["kernel"].shape == (config.num_centroids, 2, 2)
+assert load_archive(run).genotypes["params"]["Dense_0"]["kernel"].shape == (config.num_centroids, 17, 64)
 """
-    assert loaded_modules(code, ("jax", "sympy", "lark", "brax", "qdax", "flax")) == []
+    assert loaded_modules(code, ("jax", "brax", "qdax", "flax")) == []

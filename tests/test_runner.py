@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -229,6 +230,29 @@ def test_non_finite_results_never_enter_the_archive(task, monkeypatch):
     fitnesses = np.asarray(archive.fitnesses).reshape(-1)
     assert np.all(np.isfinite(fitnesses[fitnesses > -np.inf]))
     assert np.all(np.isfinite(np.asarray(archive.descriptors).reshape(-1, 2)[fitnesses > -np.inf]))
+
+
+@pytest.mark.slow
+def test_a_phase_of_nothing_but_non_finite_results_stops_the_run(tmp_path, monkeypatch):
+    """A body the physics cannot simulate (here gear 1e30, which `check --task` refuses: the
+    proof is switched off to reach the physics) stops the run at the end of its first phase,
+    instead of training on an empty archive."""
+    from smol_dsl.tasks import registry
+
+    monkeypatch.setattr(registry, "check_resolved_factors", lambda *args: None)
+    huge = smol_dsl.parse("0% .. 50%: constant 1e30\n50% .. 100%: tail\n", path="huge.sched")
+    out = tmp_path / "run"
+    with pytest.raises(RunError) as caught:
+        run_experiment("walker2d", huge, CONFIG, out_dir=out)
+    message = str(caught.value)
+    assert re.match(
+        r"walker2d-huge-seed0: all \d+ evaluations of phase 0 scored NaN or infinity, under the body "
+        r"alpha 1e\+30: the physics of walker2d cannot simulate it",
+        message,
+    ), message
+    assert "smol-dsl check --task walker2d" in message
+    rows = list(csv.DictReader(open(out / "metrics.csv")))
+    assert rows[-1]["phase"] == "0" and (out / "checkpoint.npz").is_file() and not (out / "archive.npz").exists()
 
 
 def test_config_checks(library):

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from smol_dsl.cli.common import EXIT_OK, EXIT_USAGE, UsageError, load_all, positive_int, print_errors, whole_number
+from smol_dsl.seeds import check_seed, schedule_key
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -34,7 +35,6 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def _seed(text: str) -> int:
     """plot --seed: a seed as `run --seed` takes it, 0 to 2**32 - 1 (smol_dsl.seeds)."""
-    from smol_dsl.seeds import check_seed
 
     try:
         return check_seed(whole_number(text), "")
@@ -52,9 +52,7 @@ def plot_schedules(args: argparse.Namespace) -> int:
         print_errors(errors)
         return EXIT_USAGE
     _note_phase_counts(schedules, args.phases)
-    import jax
-
-    figure = schedule_figure(schedules, num_phases=args.phases, key=jax.random.key(args.seed))
+    figure = schedule_figure(schedules, num_phases=args.phases, key=schedule_key(args.seed))  # `run --seed`'s draws
     try:
         save_figure(figure, out)  # atomically: a failure leaves no half-written file
     except OSError as error:

@@ -162,6 +162,7 @@ class TrainingCommand(ABC):
         part = sweep_part(args)
         out = Path(args.out) if args.out is not None else self.default_out(args, schedules, config)
         plan = Plan(args, schedules, config, self.seeds(args, config), part, out)
+        self.check_plan(plan)  # what the training itself would refuse, --dry-run included
         check_out_dir(out)  # before anything compiles: a file, a device or a path under a file
         if not args.resume and part == (0, 1) and non_empty(out):
             raise busy(out)
@@ -196,6 +197,9 @@ class TrainingCommand(ABC):
     def note(self, config: RunConfig) -> str | None:
         """A note printed before training starts, if any."""
         return None
+
+    def check_plan(self, plan: Plan) -> None:  # noqa: B027 (a run has nothing more to check)
+        """Refuse, before anything compiles, a plan that training would refuse."""
 
     @abstractmethod
     def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
@@ -283,6 +287,13 @@ class Sweep(TrainingCommand):
 
     def seeds(self, args: argparse.Namespace, config: RunConfig) -> list[int]:
         return list(range(args.first_seed, args.first_seed + args.seeds))
+
+    def check_plan(self, plan: Plan) -> None:
+        """The sweep's runs as `run_sweep` plans them: each (schedule, seed) once, in directories
+        of their own, and enough of them for every process."""
+        from smol_dsl.runner.sweep import plan_sweep, sweep_part
+
+        sweep_part(plan_sweep(plan.schedules, plan.seeds, plan.config), plan.part)
 
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
         return Path("runs") / f"{args.task}-sweep"

@@ -75,8 +75,9 @@ def channel_line(decl: tree.ChannelDecl) -> tree.ChannelLine:
                 hint="name each target once",
             )
         seen.add(name.id)
-    channel = Channel(kind.id, tuple(name.id for name in targets.names))
-    return tree.ChannelLine(channel, decl.span, kind.span, tuple(name.span for name in targets.names), targets.span)
+    written = tuple(name.id for name in targets.names)
+    spans = tuple(name.span for name in targets.names)
+    return tree.ChannelLine(Channel(kind.id, written), decl.span, kind.span, written, spans, targets.span)
 
 
 def channel_kinds_text() -> str:
@@ -135,19 +136,20 @@ class _Program:
         """Start a channel's section, refusing a channel declared a second time (the implicit
         gear channel included)."""
         for section in self.sections:
-            if not _same_channel(section.channel, line.channel):
+            if section.channel != line.channel:  # targets in any order: a channel holds them sorted
                 continue
             if section.line is None:
                 raise ScheduleError(
-                    f"`channel {line.channel.name}` is given twice: the lines before the first `channel` line "
+                    f"`channel {line.text}` is given twice: the lines before the first `channel` line "
                     f"(from line {section.first.line}) are the gear channel's",
                     span=line.span,
                     hint="move those lines below this `channel gear` line, or delete one of the two",
                 )
+            again = "" if line.text == section.line.text else f", and here as `{line.text}`"
             raise ScheduleError(
-                f"`channel {line.channel.name}` is given twice (first on line {section.first.line})",
+                f"`channel {section.line.text}` is given twice (first on line {section.first.line}{again})",
                 span=line.span,
-                hint="a file declares each channel once: merge the two sections",
+                hint="a file declares each channel once, its targets in any order: merge the two sections",
             )
         self.sections.append(_Section(line, line.span))
 
@@ -163,11 +165,6 @@ class _Program:
             )
         built = [section.build() for section in sections] or [tree.Section(GEAR)]
         return tree.Program(lets=tuple(self.lets), sections=tuple(built), **self.directives.values)
-
-
-def _same_channel(a: Channel, b: Channel) -> bool:
-    """Whether two channel lines declare the same channel (targets in any order)."""
-    return a.kind == b.kind and set(a.targets) == set(b.targets)
 
 
 def _channel(program: _Program, line: tree.ChannelLine) -> None:

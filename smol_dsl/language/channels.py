@@ -14,9 +14,12 @@ the task's body, 1 being the standard body:
 Factors multiply: an actuator under `gear` and `gear[left_leg]` gets their product.
 A channel's targets are names; which names a body has is the task's business
 (`smol_dsl.tasks.Anatomy`): the language checks targets against the names it is given.
+Targets are a set: however a file or a caller orders them, a channel holds them sorted, so
+`mass[torso, thigh]` and `mass[thigh,torso]` are one channel, with one name (in metrics
+columns and messages) and one random key.
 
->>> Channel.parse("gear[left_leg]").targets
-('left_leg',)
+>>> Channel.parse("mass[torso, thigh]").name
+'mass[thigh,torso]'
 """
 
 from __future__ import annotations
@@ -53,12 +56,24 @@ _CANONICAL = re.compile(r"^([a-z]+)(?:\[([^\[\]]+)\])?$")
 class Channel:
     """A scheduled parameter: a kind, and the actuators or links it is limited to (none: all).
 
-    Its `name` is how files, metrics.csv columns and messages write it: `gear`,
-    `gear[left_leg]`, `mass[torso,thigh]`.
+    Its `name` is how metrics.csv columns, certificates and messages write it: `gear`,
+    `gear[left_leg]`, `mass[thigh,torso]` (targets sorted, whatever order they are given in).
     """
 
     kind: str
     targets: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.kind not in CHANNEL_KINDS:
+            raise ValueError(f"{self.kind!r} is not a channel kind; the kinds are {', '.join(CHANNEL_KINDS)}")
+        if isinstance(self.targets, str) or not all(isinstance(target, str) for target in self.targets):
+            raise TypeError(f"a channel's targets are a tuple of names, not {self.targets!r}")
+        if self.targets and CHANNEL_KINDS[self.kind].part is None:
+            raise ValueError(f"{self.kind} takes no targets: it scales {CHANNEL_KINDS[self.kind].scales}")
+        if len(set(self.targets)) != len(self.targets):
+            repeated = next(target for target in self.targets if self.targets.count(target) > 1)
+            raise ValueError(f"{self.kind}[...] names {repeated!r} twice; name each target once")
+        object.__setattr__(self, "targets", tuple(sorted(self.targets)))
 
     @property
     def name(self) -> str:
@@ -72,11 +87,16 @@ class Channel:
 
     @classmethod
     def parse(cls, name: str) -> Channel:
-        """The channel a canonical name (`Channel.name`) writes; ValueError if it is not one."""
+        """The channel a name writes (`mass`, `mass[torso, thigh]`: targets in any order, spaces
+        allowed); TypeError for what is not a str, ValueError for a str that names no channel."""
+        if not isinstance(name, str):
+            raise TypeError(f"a channel is a Channel or its name as a str (e.g. 'mass[torso]'), not {name!r}")
         match = _CANONICAL.match(name.replace(" ", ""))
         if match is None or match.group(1) not in CHANNEL_KINDS:
             raise ValueError(f"{name!r} is not a channel; the channels are {', '.join(CHANNEL_KINDS)}")
         targets = tuple(match.group(2).split(",")) if match.group(2) else ()
+        if "" in targets:
+            raise ValueError(f"{name!r} is not a channel: a target between its commas is empty")
         return cls(match.group(1), targets)
 
     def __str__(self) -> str:

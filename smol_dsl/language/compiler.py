@@ -132,7 +132,7 @@ def _curve(scope: Scope, section: tree.Section, named: bool, segments_before: in
     )
     place = None
     if section.line is not None:
-        place = ChannelPlace(section.line.span, section.line.target_spans)
+        place = ChannelPlace(section.line.span, section.line.target_spans, section.line.written)
     return SymbolicCurve(
         channel=section.channel,
         segments=segments,

@@ -38,10 +38,34 @@ def fraction(value: sp.Rational) -> Fraction:
 
 
 def default_key(key: jax.Array | None) -> jax.Array:
-    """`key`, or the fixed default key `jax.random.key(0)` when None."""
+    """`key`, or the fixed default key `jax.random.key(0)` when None; TypeError for what is not
+    one JAX random key (`check_key`)."""
     import jax
 
-    return jax.random.key(0) if key is None else key
+    return jax.random.key(0) if key is None else check_key(key)
+
+
+def check_key(key: jax.Array | None) -> jax.Array | None:
+    """`key` (None too), or a TypeError for what is not one JAX random key: a typed key
+    (`jax.random.key(seed)`) or a raw one (`jax.random.PRNGKey(seed)`, uint32[2])."""
+    import jax
+    import jax.numpy as jnp
+
+    if key is None:
+        return None
+    dtype, shape = getattr(key, "dtype", None), getattr(key, "shape", None)
+    if dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) and shape == ():
+        return key
+    if dtype == jnp.uint32 and shape == (2,):  # a raw key, as jax.random.PRNGKey gives
+        return key
+    raise TypeError(f"key is one JAX random key, e.g. jax.random.key(0) (None: that default), not {_shown(key)}")
+
+
+def _shown(value: Any) -> str:
+    """A value for a message: an array by its dtype and shape, anything else by its repr."""
+    if hasattr(value, "dtype") and hasattr(value, "shape"):
+        return f"an array of {value.dtype}{list(value.shape)}"
+    return repr(value)
 
 
 def check_phases(num_phases: int) -> None:
@@ -130,6 +154,7 @@ class Curve:
         """
         import jax.numpy as jnp
 
+        key = check_key(key)  # also where no segment draws: a wrong argument is wrong regardless
         t = jnp.clip(jnp.asarray(t, dtype=jnp.result_type(float)), 0.0, 1.0)
         tables = self._tables()
         index = jnp.searchsorted(jnp.asarray(tables.starts[1:], dtype=t.dtype), t, side="right")
@@ -144,6 +169,7 @@ class Curve:
         """
         import jax.numpy as jnp
 
+        key = check_key(key)
         segment_of, bin_of = self._phase_tables(num_phases)
         k = jnp.clip(jnp.asarray(k, dtype=jnp.int32), 0, num_phases - 1)
         t = k.astype(jnp.result_type(float)) / num_phases

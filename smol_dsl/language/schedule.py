@@ -6,6 +6,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import re
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import replace
 from fractions import Fraction
@@ -30,6 +31,7 @@ if TYPE_CHECKING:
     import sympy as sp
 
 _CONSTANT_TEXT = "0% .. 100%: tail\n"
+_LONE_CR = re.compile(r"\r(?!\n)")
 
 
 @lru_cache(maxsize=64)
@@ -86,12 +88,21 @@ class Schedule:
         """The scheduled channels, in the order the file declares them (`(GEAR,)` without any)."""
         return tuple(self._curves)
 
-    def curve(self, channel: Channel | str = GEAR) -> Curve:
-        """One channel's curve, by `Channel` or name (`"mass"`, `"gear[left_leg]"`); a channel the
-        file does not declare is 1 throughout. ValueError for a name that is no channel."""
+    def curve(self, channel: Channel | str = GEAR, *, or_standard: bool = False) -> Curve:
+        """One declared channel's curve, by `Channel` or name (`"mass"`, `"mass[torso, thigh]"`:
+        targets in any order). ValueError for a channel the file does not declare, unless
+        `or_standard`: then it is the standard body's, 1 throughout (as `alpha` is for a file
+        that does not schedule plain gear)."""
         channel = _as_channel(channel)
         found = self._curves.get(channel)
-        return found if found is not None else constant_curve(channel)
+        if found is not None:
+            return found
+        if or_standard:
+            return constant_curve(channel)
+        raise ValueError(
+            f"schedule {self.name!r} declares no channel {channel.name}; it declares "
+            f"{', '.join(c.name for c in self.channels)} (curve(..., or_standard=True) gives 1 for any other)"
+        )
 
     @property
     def certificates(self) -> dict[Channel, Certificate]:
@@ -114,6 +125,8 @@ class Schedule:
         """The names of the channels whose final values differ between the two schedules (a
         channel a file does not declare ends at 1), in declared order: empty when both end on
         the same body, so that their runs compare."""
+        if not isinstance(other, Schedule):
+            raise TypeError(f"final_differences takes a Schedule (e.g. smol_dsl.load('leg-damage')), not {other!r}")
         return [channel.name for channel in differing_finals(self.final_body, other.final_body)]
 
     def check_targets(
@@ -139,16 +152,18 @@ class Schedule:
                     path=self.path,
                 )
             known = list(targets.get(part, ()))
-            unknown = [target for target in channel.targets if target not in known]
+            unknown = [target for target in place.written if target not in known]
             if not unknown:
                 continue
             target = unknown[0]
-            close = difflib.get_close_matches(target, known, n=1)
+            close = _closest(target, known)
             what = (listing or {}).get(part, f"{part}: {', '.join(known)}")
+            other = next((p for p, names in targets.items() if p != part and target in names), None)
+            elsewhere = f"`{target}` is one of {task}'s {other}, and {channel.kind}[...] names {part}; " * bool(other)
             raise ScheduleError(
                 f"task {task} has no {part} named `{target}`",
-                span=place.target_spans[channel.targets.index(target)],
-                hint=(f"did you mean `{close[0]}`? " if close else "") + f"{task}'s {what}",
+                span=place.target_spans[place.written.index(target)],
+                hint=elsewhere + (f"did you mean `{close}`? " if close else "") + f"{task}'s {what}",
                 source=self.source,
                 path=self.path,
             )
@@ -199,11 +214,26 @@ class Schedule:
         chosen = self._chosen(channels)
         values = np.asarray(self.phase_values(num_phases, key, chosen))
         for column, channel in enumerate(chosen):
-            self.curve(channel).check_phase_values(values[:, column], num_phases)
+            self.curve(channel, or_standard=True).check_phase_values(values[:, column], num_phases)
         return values
 
     def _chosen(self, channels: Sequence[Channel | str] | None) -> tuple[Channel, ...]:
-        return self.channels if channels is None else tuple(_as_channel(channel) for channel in channels)
+        """The channels a `channels` argument names: the file's for None; TypeError for a single
+        name or what is not a sequence, ValueError for none or a channel given twice."""
+        if channels is None:
+            return self.channels
+        if isinstance(channels, (str, Channel)) or not isinstance(channels, Sequence):
+            raise TypeError(
+                f"channels is a sequence of channels or names, e.g. ('mass', 'gear'), not {channels!r}"
+                + (f"; for one channel write ({channels!r},)" if isinstance(channels, (str, Channel)) else "")
+            )
+        chosen = tuple(_as_channel(channel) for channel in channels)
+        if not chosen:
+            raise ValueError("channels is empty: name at least one channel, or pass None for the file's own")
+        if len(set(chosen)) != len(chosen):
+            repeated = next(channel for channel in chosen if chosen.count(channel) > 1)
+            raise ValueError(f"channels names {repeated.name} twice (targets in any order are one channel)")
+        return chosen
 
     def tail_phases(self, num_phases: int) -> int:
         """How many of `num_phases` equal phases lie wholly inside every channel's tail."""
@@ -215,7 +245,7 @@ class Schedule:
     # as `phase_values` (1 throughout in a file that does not schedule plain gear).
     @property
     def _gear(self) -> Curve:
-        return self.curve(GEAR)
+        return self.curve(GEAR, or_standard=True)
 
     @property
     def certificate(self) -> Certificate:
@@ -291,8 +321,23 @@ class Schedule:
 
 
 def _as_channel(channel: Channel | str) -> Channel:
-    """A channel, or the channel a name writes (ValueError for a name that is no channel)."""
-    return Channel.parse(channel) if isinstance(channel, str) else channel
+    """A channel, or the channel a name writes (ValueError for a name that is no channel,
+    TypeError for what is neither)."""
+    return channel if isinstance(channel, Channel) else Channel.parse(channel)
+
+
+def _closest(target: str, known: Sequence[str]) -> str | None:
+    """The known name a mistyped target most likely means: the longest one it starts with
+    (`thigh` for `thigh_joint`), else the shortest one that starts with it (`thigh_joint`
+    for `thigh`), else the closest spelling."""
+    shorter = [name for name in known if target.startswith(name)]
+    if shorter:
+        return max(shorter, key=len)
+    longer = [name for name in known if name.startswith(target)]
+    if longer:
+        return min(longer, key=len)
+    close = difflib.get_close_matches(target, list(known), n=1)
+    return close[0] if close else None
 
 
 def _joined(spans: Sequence[Span]) -> Span:
@@ -304,8 +349,12 @@ def _joined(spans: Sequence[Span]) -> Span:
 
 
 def parse(text: str, *, path: str | os.PathLike[str] | None = None) -> Schedule:
-    """Parse, compile and verify `.sched` text; raise `ScheduleError` if anything is wrong."""
+    """Parse, compile and verify `.sched` text; raise `ScheduleError` if anything is wrong.
+
+    Lines may end in LF, CRLF or a lone CR (old Mac files); a lone CR becomes LF in the
+    schedule's `source`, so that line numbers are the ones an editor shows."""
     shown = str(path) if path is not None else None
+    text = _LONE_CR.sub("\n", text)
     try:
         program = parse_program(text)
         symbolic = compile_program(program)

@@ -100,6 +100,8 @@ class ChannelPlace:
 
     span: Span
     target_spans: tuple[Span, ...] = ()
+    written: tuple[str, ...] = ()
+    """The targets in the order written, one per span."""
 
 
 @dataclass(frozen=True)

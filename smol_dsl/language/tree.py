@@ -159,10 +159,18 @@ class ChannelLine:
     span: Span
     """The whole line."""
     kind_span: Span
+    written: tuple[str, ...] = ()
+    """The targets in the order the line writes them (the channel holds them sorted)."""
     target_spans: tuple[Span, ...] = ()
-    """One per target, in order."""
+    """One per target, in the order written."""
     targets_span: Span | None = None
     """The bracketed target list, brackets included."""
+
+    @property
+    def text(self) -> str:
+        """The channel as the line writes it: `mass[torso, thigh]`."""
+        kind = self.channel.kind
+        return f"{kind}[{', '.join(self.written)}]" if self.written else kind
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,9 @@ DASHES = ("-", "--", ":", "-.")
 MARKERS = (None, "o", "s", "^", "v", "D", "x", "+")
 LABEL_CHARS = 40
 """Legend labels longer than this are shortened (with an ellipsis)."""
+CHANNEL_PANELS = 6
+"""Up to this many channels a schedule figure gives each its own panel; past it, one panel
+per kind of channel (gear, mass, ...), each channel a line of steps."""
 
 
 def series_styles(count: int) -> list[dict[str, Any]]:
@@ -112,10 +115,13 @@ def schedule_figure(
     at 1. Schedules of plain gear alone give the paper's Figure 2: one panel of alpha. A
     dashed vertical line marks where a channel reaches its final value for good (one line
     per distinct tail start). Each schedule has its own colour (and, past 20 schedules, dash
-    pattern); past 10 schedules the legend goes below the plot. Returns the matplotlib
+    pattern); past 10 schedules the legend goes below the plot. Past CHANNEL_PANELS
+    channels, one panel per kind of channel instead (`kinds_figure`). Returns the matplotlib
     Figure; save it with `save_figure(figure, path)` or `figure.savefig(path)`.
     """
     channels = list(dict.fromkeys(channel for schedule in schedules for channel in schedule.channels))
+    if len(channels) > CHANNEL_PANELS:
+        return kinds_figure(schedules, channels, num_phases=num_phases, key=key)
     figure = Figure(figsize=(7.0, 4.2 if len(channels) == 1 else 1.0 + 2.5 * len(channels)), layout="constrained")
     panels = figure.subplots(len(channels), 1, sharex=True, squeeze=False)[:, 0]
     styles = series_styles(len(schedules))
@@ -146,7 +152,7 @@ def _draw_channel(
     smooth_t = np.linspace(0.0, 1.0, smooth_points)
     phase_starts = np.arange(num_phases + 1) / num_phases * 100
     for schedule, style in zip(schedules, styles, strict=True):
-        curve = schedule.curve(channel)
+        curve = schedule.curve(channel, or_standard=True)  # a schedule without the channel: flat at 1
         steps = np.asarray(curve.phase_values(num_phases, key))
         label = legend_label(schedule.name)
         axes.step(phase_starts, np.append(steps, steps[-1]), where="post", lw=2.0, label=label, **style)
@@ -172,6 +178,40 @@ def _draw_channel(
         axes.margins(y=0.12)  # room above a final value at the top of the panel for its label
     axes.set_ylabel("α (actuator gear scale)" if gear else f"{legend_label(channel.name)} (factor)")
     axes.grid(alpha=0.25)
+
+
+def kinds_figure(
+    schedules: Sequence[Schedule], channels: Sequence[Channel], *, num_phases: int, key: jax.Array | None
+) -> Figure:
+    """Schedules of many channels: one panel per kind of channel, every channel of that kind
+    (of every schedule) a line of its per-phase steps, labelled `schedule: channel` (the
+    channel alone for one schedule); past LEGEND_INSIDE lines the panel's title counts them
+    instead of a legend (one of hundreds of entries would be taller than any plot)."""
+    kinds = list(dict.fromkeys(channel.kind for channel in channels))
+    figure = Figure(figsize=(7.0, 1.0 + 2.8 * len(kinds)), layout="constrained")
+    panels = figure.subplots(len(kinds), 1, sharex=True, squeeze=False)[:, 0]
+    phase_starts = np.arange(num_phases + 1) / num_phases * 100
+    for axes, kind in zip(panels, kinds, strict=True):
+        series = [
+            (schedule, channel) for schedule in schedules for channel in schedule.channels if channel.kind == kind
+        ]
+        styles = series_styles(len(series))
+        values = {schedule.name: np.asarray(schedule.phase_values(num_phases, key)) for schedule in schedules}
+        for (schedule, channel), style in zip(series, styles, strict=True):
+            steps = values[schedule.name][:, schedule.channels.index(channel)]
+            label = legend_label(channel.name if len(schedules) == 1 else f"{schedule.name}: {channel.name}")
+            axes.step(phase_starts, np.append(steps, steps[-1]), where="post", lw=1.2, label=label, **style)
+        axes.axhline(1.0, color="0.7", lw=0.6, zorder=0)
+        axes.set_xlim(0, 100)
+        axes.set_ylabel(f"{kind} (factor)")
+        axes.grid(alpha=0.25)
+        if len(series) <= LEGEND_INSIDE:
+            axes.legend(fontsize=7, frameon=False)
+        else:
+            axes.set_title(f"{len(series)} {kind} channels", fontsize=9)
+    panels[-1].set_xlabel("training progress (%)")
+    figure.suptitle(f"Developmental schedules ({num_phases} phases, {len(channels)} channels)")
+    return figure
 
 
 def save_figure(figure: Figure, out: str | Path, *, dpi: int = 150) -> Path:
@@ -208,8 +248,10 @@ def metrics_figure(run: RunRecord, title: str) -> Figure:
         values = np.asarray([r[column] for r in rows], dtype=float)
         axes[-1].plot(evaluations, values, lw=1.4, drawstyle="steps-post", label=column)
     axes[-1].set_ylabel(METRICS_SCHEMA[ALPHA].axis_label if body == (ALPHA,) else "factor")
-    if len(body) > 1:
+    if 1 < len(body) <= LEGEND_INSIDE:
         axes[-1].legend(fontsize=7)
+    elif len(body) > LEGEND_INSIDE:  # a legend of every channel would not fit beside the scores
+        axes[-1].set_title(f"{len(body)} channels", fontsize=9)
     final_from = run.final_body_evaluations()
     for ax in axes:
         if final_from is not None and 0 < final_from:

@@ -18,14 +18,14 @@ import csv
 import io
 import math
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from smol_dsl.errors import UserInputError
-from smol_dsl.language.channels import differing_finals
 from smol_dsl.results.figures import archives_figure, results_figure
 from smol_dsl.rundir import (
     CONFIG_FILE,
@@ -38,6 +38,10 @@ from smol_dsl.rundir import (
     read_run,
 )
 from smol_dsl.tasks import descriptor_bounds, task_spec
+from smol_dsl.tasks.anatomy import resolved_names, same_body
+
+if TYPE_CHECKING:
+    from smol_dsl.tasks.anatomy import Anatomy
 
 METRICS = SCORES
 """The final scores a report can compare (`--metric`); each task has its default."""
@@ -211,19 +215,33 @@ def _check_new_seed(group: Sequence[RunRecord], run: RunRecord) -> None:
 
 
 def _check_final_bodies(groups: dict[str, list[RunRecord]]) -> None:
-    """Refuse schedules whose final bodies differ: their final scores are of different robots."""
+    """Refuse schedules whose final bodies differ, part by part (each actuator's gear, each
+    link's mass, friction, gravity: the product of the channels that reach it, however the
+    files spell them): their final scores are of different robots."""
     first_name, first = next(iter(groups.items()))
     for name, group in groups.items():
-        body, reference = group[0].final_body, first[0].final_body
-        differing = differing_finals(body, reference)
-        if differing:
-            channel = differing[0]
-            raise ReportError(
-                f"{name} and {first_name} end on different bodies: channel {channel} ends at "
-                f"{body.get(channel, 1.0):g} in {name} ({group[0].directory}) and at "
-                f"{reference.get(channel, 1.0):g} in {first_name} ({first[0].directory}); final scores are only "
-                "comparable on the same final body: report them separately, or give the schedules the same `final`"
-            )
+        body, reference = group[0].body, first[0].body
+        if same_body(body, reference):
+            continue
+        kind, part, mine, theirs = _first_difference(body, reference, task_spec(first[0].task).anatomy)
+        raise ReportError(
+            f"{name} and {first_name} end on different bodies: {part}'s {kind} factor ends at {mine:g} in {name} "
+            f"({group[0].directory}) and at {theirs:g} in {first_name} ({first[0].directory}); final scores are only "
+            "comparable on the same final body: report them separately, or give the schedules the same `final`"
+        )
+
+
+def _first_difference(
+    body: Mapping[str, tuple[float, ...]], reference: Mapping[str, tuple[float, ...]], anatomy: Anatomy | None
+) -> tuple[str, str, float, float]:
+    """(kind, part, factor in body, factor in reference) of the first part that differs."""
+    for kind in dict.fromkeys([*body, *reference]):
+        names = resolved_names(anatomy, kind)
+        mine, theirs = body.get(kind, (1.0,) * len(names)), reference.get(kind, (1.0,) * len(names))
+        for part, a, b in zip(names, mine, theirs, strict=True):
+            if not same_body({kind: (a,)}, {kind: (b,)}):
+                return kind, (part if part != kind else "the body"), a, b
+    raise AssertionError("the bodies differ")
 
 
 def _steps(run: RunRecord) -> list[tuple[int, int, int]]:

@@ -8,6 +8,7 @@ import os
 import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
+from itertools import pairwise
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -24,6 +25,21 @@ if TYPE_CHECKING:
 ARCHIVE_ARRAYS = ("fitnesses", "descriptors", "centroids", "filled")
 """archive.npz's arrays besides the policies (`genotypes/<parameter path>`)."""
 GENOTYPES = "genotypes/"
+
+
+def policy_shapes(task: str, config: RunConfig, cells: int) -> dict[str, tuple[int, ...]] | None:
+    """The arrays of `cells` policies of the task's network (QDax's MLP: `Dense_i`'s kernel
+    and bias, observations -> hidden_layer_sizes -> one action per actuator), by archive name;
+    None for a task whose spec does not give its observation size and anatomy."""
+    spec = task_spec(task)
+    if spec.observation_size is None or spec.anatomy is None:
+        return None
+    sizes = (spec.observation_size, *config.hidden_layer_sizes, len(spec.anatomy.actuators))
+    shapes: dict[str, tuple[int, ...]] = {}
+    for i, (inputs, outputs) in enumerate(pairwise(sizes)):
+        shapes[f"{GENOTYPES}params/Dense_{i}/kernel"] = (cells, inputs, outputs)
+        shapes[f"{GENOTYPES}params/Dense_{i}/bias"] = (cells, outputs)
+    return shapes
 
 
 def write_archive(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
@@ -109,6 +125,7 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
     lacking = [name for name in ARCHIVE_ARRAYS if name not in headers] + ([] if policies else ["genotypes/..."])
     if lacking:
         raise RunDirectoryError(f"{path}: lacks the array(s) {', '.join(lacking)}; {again}")
+    _check_policies(path, config, policies, again)
     for name in [*ARCHIVE_ARRAYS, *policies]:  # before reading anything: a damaged header may claim any size
         if headers[name] is not None:
             _check_array(path, config, name, *headers[name], again)
@@ -120,6 +137,20 @@ def read_final_archive(directory: Path, config: RunConfig) -> FinalArchive:
     return FinalArchive(**arrays)
 
 
+def _check_policies(path: Path, config: RunConfig, names: list[str], again: str) -> None:
+    """The policies are the config's network for its task: the same parameters (the shapes
+    follow from the headers, `_check_array`)."""
+    expected = policy_shapes(config.task, config, config.num_centroids)
+    if expected is None or sorted(names) == sorted(expected):
+        return
+    odd = sorted(set(names) ^ set(expected))
+    raise RunDirectoryError(
+        f"{path}: its policies' parameters ({', '.join(sorted(names))}) are not those of {config.task}'s "
+        f"network in {CONFIG_FILE} (it would have {', '.join(sorted(expected))}; {odd[0]} differs); the archive "
+        f"is of another task or network: {again}"
+    )
+
+
 def _check_array(path: Path, config: RunConfig, name: str, shape: tuple[int, ...], dtype: np.dtype, again: str) -> None:
     """An array of archive.npz has the shape and kind the run's config gives: a policy's
     parameters one per cell, `filled` bool (C,), the others float, (C,) or (C, D)."""
@@ -129,6 +160,15 @@ def _check_array(path: Path, config: RunConfig, name: str, shape: tuple[int, ...
             raise RunDirectoryError(
                 f"{path}: {name} has shape {shape}, not one policy per cell ({cells}, ...); {again}"
             )
+        expected = (policy_shapes(config.task, config, cells) or {}).get(name)
+        if expected is not None and tuple(shape) != expected:
+            layers = " -> ".join(str(size) for size in expected[1:])
+            raise RunDirectoryError(
+                f"{path}: {name} has shape {tuple(shape)}, but {config.task}'s network in {CONFIG_FILE} gives "
+                f"{expected} ({layers} per cell): the archive is of another task or network; {again}"
+            )
+        if not np.issubdtype(dtype, np.floating):
+            raise RunDirectoryError(f"{path}: {name} is a {dtype} array, not float parameters; {again}")
         return
     size = task_spec(config.task).descriptor_size
     expected = {"fitnesses": (cells,), "descriptors": (cells, size), "centroids": (cells, size), "filled": (cells,)}

@@ -60,7 +60,7 @@ def read_text(path: Path) -> str:
     """A run directory's text file, or a RunDirectoryError saying why it cannot be used."""
     directory = path.parent
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")  # a byte-order mark is not part of the text
     except FileNotFoundError:
         raise RunDirectoryError(
             f"{path}: missing; every run directory holds it (the runner writes it first), so {directory} is "

@@ -236,12 +236,9 @@ def schema_of_header(header: Sequence[str]) -> MetricsSchema:
     header name that is a channel's (other columns are ignored)."""
     channels = []
     for name in header:
-        if name in METRICS_SCHEMA.names:
-            continue
-        try:
-            channels.append(Channel.parse(name))
-        except ValueError:
-            continue
+        channel = _channel_of(name) if name not in METRICS_SCHEMA.names else None
+        if channel is not None and channel.name == name and channel not in channels:
+            channels.append(channel)
     return metrics_schema(channels)
 
 
@@ -311,7 +308,7 @@ def read_metrics(
     rows: list[dict[str, Any]] = []
     line = 0
     try:
-        with open(path, newline="", encoding="utf-8") as file:
+        with open(path, newline="", encoding="utf-8-sig") as file:  # a BOM is not part of the header
             reader = csv.reader(file)
             header, schema = _read_header(path, next(reader, None), schema, rerun)
             for values in reader:
@@ -334,17 +331,33 @@ def read_metrics(
 def _read_header(
     path: Path, header: list[str] | None, schema: MetricsSchema, rerun: str
 ) -> tuple[list[str], MetricsSchema]:
-    """metrics.csv's header, checked against the schema: every column there, none twice. The
-    default schema becomes the runner's columns and one per scheduled channel the header names."""
+    """metrics.csv's header, checked against the schema: every column there, none twice, and
+    no channel's column the schema lacks (a column of another schedule's channel, or one
+    channel's written twice in two spellings). The default schema becomes the runner's
+    columns and one per scheduled channel the header names."""
     if header is None:
         raise RunDirectoryError(f"{path}: empty; the run wrote no metrics (it stopped at once); {rerun}")
     if schema is METRICS_SCHEMA:
         schema = schema_of_header(header)
     missing = [name for name in schema.names if name not in header]
-    if missing or len(set(header)) != len(header):
-        what = f"lacks the column(s) {', '.join(missing)}" if missing else "names a column twice"
+    foreign = [name for name in header if name not in schema.names and _channel_of(name) is not None]
+    if missing or foreign or len(set(header)) != len(header):
+        if missing:
+            what = f"lacks the column(s) {', '.join(missing)}"
+        elif foreign:
+            what = f"has a column of a channel the run does not schedule, or not as the runner writes it: {foreign[0]}"
+        else:
+            what = "names a column twice"
         raise RunDirectoryError(f"{path}:1: the header {what}; it should be {','.join(schema.names)}; {rerun}")
     return header, schema
+
+
+def _channel_of(name: str) -> Channel | None:
+    """The channel a header name writes, in any spelling (None: no channel's)."""
+    try:
+        return Channel.parse(name)
+    except ValueError:
+        return None
 
 
 def _parse_row(

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,13 +15,25 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from smol_dsl.errors import ScheduleError
 from smol_dsl.language.channels import GEAR, Channel
+from smol_dsl.language.schedule import parse
 from smol_dsl.rundir.archive import FinalArchive, read_final_archive
-from smol_dsl.rundir.certificate import certificate_record, certificate_text, read_certificate
+from smol_dsl.rundir.certificate import CertificateRecord, certificate_record, certificate_text, read_certificate
 from smol_dsl.rundir.config import RunConfig, read_config
 from smol_dsl.rundir.files import read_text, write_text
-from smol_dsl.rundir.layout import CERTIFICATE_FILE, CERTIFICATE_TEXT_FILE, CONFIG_FILE, METRICS_FILE, SCHEDULE_FILE
-from smol_dsl.rundir.metrics import final_body_evaluations, first_tail_phase, read_metrics
+from smol_dsl.rundir.layout import (
+    CERTIFICATE_FILE,
+    CERTIFICATE_TEXT_FILE,
+    CONFIG_FILE,
+    METRICS_FILE,
+    SCHEDULE_FILE,
+    RunDirectoryError,
+    leave_out,
+)
+from smol_dsl.rundir.metrics import final_body_evaluations, first_tail_phase, metrics_schema, read_metrics
+from smol_dsl.tasks import task_spec
+from smol_dsl.tasks.anatomy import resolve
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
@@ -61,6 +75,9 @@ class RunRecord:
     archive: FinalArchive | None = None  # None until the run has finished
     final_body: Mapping[str, float] = dataclasses.field(default_factory=dict)  # channels not ending at 1
     channels: tuple[Channel, ...] = (GEAR,)  # the schedule's channels, in declared order
+    body: Mapping[str, tuple[float, ...]] = dataclasses.field(default_factory=dict)
+    """The final body resolved per part (`tasks.anatomy.resolve`): each actuator's gear and
+    link's mass factor, friction's and gravity's; a kind left out is 1 throughout."""
 
     @property
     def task(self) -> str:
@@ -102,23 +119,120 @@ class RunRecord:
 
 def read_run(directory: Path) -> RunRecord:
     """Read and check a run directory: config.json, certificate.json, schedule.sched, every
-    row of metrics.csv and, if the run has finished, archive.npz. Raises RunDirectoryError
-    naming the file (and line) that cannot be used, and what to do."""
+    row of metrics.csv and, if the run has finished, archive.npz. What can be derived is
+    derived, not believed: the schedule is parsed and verified again from schedule.sched (its
+    channels, where its tail starts and its final body, resolved per actuator and link of the
+    config's task), certificate.json must agree with it, and metrics.csv must hold exactly
+    its channels' columns. Raises RunDirectoryError naming the file (and line) that cannot be
+    used, and what to do."""
     directory = Path(directory)
     config = read_config(directory / CONFIG_FILE)
     certificate = read_certificate(directory / CERTIFICATE_FILE)
     source = read_text(directory / SCHEDULE_FILE)
-    rows = read_metrics(directory / METRICS_FILE, config)
+    schedule = _schedule_of(directory, source, config)
+    _check_certificate(directory, certificate, schedule)
+    rows = read_metrics(directory / METRICS_FILE, config, metrics_schema(schedule.channels))
     run = RunRecord(
         directory,
         config,
         certificate.name,
         source,
-        certificate.tail_start,
+        float(schedule.tail_start),
         rows,
-        final_body=certificate.final_body,
-        channels=certificate.channels,
+        final_body={channel.name: value for channel, value in schedule.final_body.items() if value != 1},
+        channels=schedule.channels,
+        body=resolve(task_spec(config.task).anatomy, schedule.final_body),
     )
     if run.finished:
         run = dataclasses.replace(run, archive=read_final_archive(directory, config))
+        _check_final_scores(run)
     return run
+
+
+def _check_final_scores(run: RunRecord) -> None:
+    """metrics.csv's last row gives the scores of archive.npz's elites under the config's
+    task, as QDax computes them: coverage, max fitness and QD score (whose offset per cell is
+    the task's, so that a run relabelled as another task with the same network is caught)."""
+    archive, config = run.final_archive(), run.config
+    filled = np.asarray(archive.filled, dtype=bool)
+    fitnesses = np.asarray(archive.fitnesses, dtype=np.float64)[filled]
+    offset = task_spec(config.task).reward_offset * config.episode_length
+    derived = {
+        "coverage": (100.0 * filled.mean(), 100.0),
+        "max_fitness": (fitnesses.max() if filled.any() else -math.inf, max(1.0, np.abs(fitnesses).max(initial=0))),
+        "qd_score": (
+            fitnesses.sum() + offset * filled.sum(),
+            max(1.0, np.abs(fitnesses).sum() + offset * filled.sum()),
+        ),
+    }
+    for name, (value, scale) in derived.items():
+        logged = float(run.final[name])
+        if logged == value or abs(logged - value) <= FINAL_SCORE_TOLERANCE * scale:
+            continue
+        raise RunDirectoryError(
+            f"{run.directory / METRICS_FILE}: its last row's {name} ({logged:.6g}) is not what the elites of "
+            f"archive.npz score under {CONFIG_FILE}'s task {config.task} ({value:.6g}); the files are from different "
+            f"runs, or one was edited: rerun the run, {leave_out(run.directory)}"
+        )
+
+
+FINAL_SCORE_TOLERANCE = 1e-5
+"""How far (relative to the scores' magnitude) metrics.csv's float32 scores may lie from the
+archive's, summed here in float64."""
+
+
+@functools.lru_cache(maxsize=64)
+def _parsed(source: str) -> Schedule | ScheduleError:
+    """A schedule.sched text parsed and verified (once per text: a sweep's runs share one)."""
+    try:
+        return parse(source)
+    except ScheduleError as error:
+        return error
+
+
+def _schedule_of(directory: Path, source: str, config: RunConfig) -> Schedule:
+    """The run's schedule, from its schedule.sched, checked against the config's task."""
+    path = directory / SCHEDULE_FILE
+    fix = f"it is not the file the run was set up with: rerun the run, {leave_out(directory)}"
+    parsed = _parsed(source)
+    if isinstance(parsed, ScheduleError):
+        first = str(parsed.located(source, str(path))).splitlines()[0]
+        raise RunDirectoryError(f"{first}; {fix}")
+    try:
+        task_spec(config.task).check_schedule(parsed)
+    except ScheduleError as error:
+        first = str(error.located(source, str(path))).splitlines()[0]
+        raise RunDirectoryError(
+            f"{first} (the task of {CONFIG_FILE}); the two files are from different runs: {fix}"
+        ) from None
+    return parsed
+
+
+def _check_certificate(directory: Path, certificate: CertificateRecord, schedule: Schedule) -> None:
+    """certificate.json says what verifying schedule.sched again proves: the same channels,
+    the same final body, the same start of the tail."""
+    final = {channel.name: value for channel, value in schedule.final_body.items() if value != 1}
+    found = {
+        "channels": (certificate.channels, schedule.channels),
+        "final_body": (certificate.final_body, final),
+    }
+    differing = [name for name, (said, proven) in found.items() if said != proven]
+    if not math.isclose(certificate.tail_start, float(schedule.tail_start), rel_tol=1e-12, abs_tol=1e-15):
+        differing.append("tail_start")
+    if differing:
+        name = differing[0]
+        said, proven = found[name] if name in found else (certificate.tail_start, float(schedule.tail_start))
+        raise RunDirectoryError(
+            f"{directory / CERTIFICATE_FILE}: its {name!r} ({_shown(said)}) is not what {SCHEDULE_FILE} proves "
+            f"({_shown(proven)}); one of the two files was edited or comes from another run: rerun the run, "
+            f"{leave_out(directory)}"
+        )
+
+
+def _shown(value: object) -> str:
+    """A certificate field for a message: channels by name, an empty body as `none`."""
+    if isinstance(value, tuple):
+        return ", ".join(str(item) for item in value)
+    if isinstance(value, dict):
+        return ", ".join(f"{name} {factor:g}" for name, factor in value.items()) or "none (every factor 1)"
+    return f"{value:g}" if isinstance(value, float) else str(value)

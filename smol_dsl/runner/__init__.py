@@ -22,7 +22,7 @@ _LAZY = {
     "Archive": "smol_dsl.rundir",
     "load_archive": "smol_dsl.rundir",
     "RunResult": "smol_dsl.runner.training",
-    "schedule_key": "smol_dsl.runner.training",
+    "schedule_key": "smol_dsl.seeds",
     "run_experiment": "smol_dsl.runner.run",
     "run_sweep": "smol_dsl.runner.sweep",
 }

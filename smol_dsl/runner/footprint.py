@@ -259,7 +259,7 @@ def _count(count: float) -> str:
     for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
         if count >= scale:
             return f"{count / scale:.1f} {unit}"
-    return f"{count:.0f}"
+    return f"{count:.0f}" if count >= 100 or count == 0 else f"{count:.2g}"  # a small rate is not 0
 
 
 def fit_sweep(

@@ -36,8 +36,10 @@ from smol_dsl.runner.checkpoint import (
     save_checkpoint,
     storage_error,
 )
+from smol_dsl.runner.config import RunError
 from smol_dsl.runner.engine import stack_runs
 from smol_dsl.runner.map_elites import cvt_centroids
+from smol_dsl.seeds import schedule_key
 from smol_dsl.tasks import task_spec
 
 if TYPE_CHECKING:
@@ -97,11 +99,6 @@ def check_bodies(task: Task | str, schedules: list[Schedule]) -> None:
     spec = task_spec(task) if isinstance(task, str) else task.spec
     for schedule in schedules:
         spec.check_schedule(schedule)
-
-
-def schedule_key(seed: int) -> jax.Array:
-    """The key a run draws its schedule's random segments from (one per seed)."""
-    return jax.random.fold_in(jax.random.key(seed), 0x5CED)
 
 
 def owner(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
@@ -192,6 +189,8 @@ class Training:
         self.starts = engine.put(stack_runs([starts[seed] for seed in seeds]))
         self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
         self._seeds = seeds
+        self._phase_evaluations = np.zeros(len(runs), dtype=np.int64)  # the current phase's training batches
+        self._phase_non_finite = np.zeros(len(runs), dtype=np.int64)  # ... and how many of them were non-finite
         self.repertoires: Any = None
         self.keys: Any = None
         self.states: list[RunState] = []
@@ -263,11 +262,32 @@ class Training:
                     break
                 phase = self.config.phase_of_generation(generation)
                 if phase != self.states[0].phase:
+                    self.check_phase()
                     self.reevaluate(phase)
                     if self.checkpoint is not None:
                         arrays = partial(checkpoint_arrays, self.repertoires, self.keys, self.states, self.owner)
                         writer.offer(self.checkpoint, arrays)
                 self.generation(generation, phase)
+            if self.finished:
+                self.check_phase()
+
+    def check_phase(self) -> None:
+        """Stop with a RunError if, in the phase that is ending, every evaluation of a run was
+        NaN or infinite: the physics cannot simulate the run's body, and its archive would
+        learn nothing (the checkpoint of the phase's start is kept). Then count afresh."""
+        for r, run in enumerate(self.runs):
+            evaluated, lost = int(self._phase_evaluations[r]), int(self._phase_non_finite[r])
+            if evaluated and lost == evaluated:
+                phase = self.states[r].phase
+                body = ", ".join(f"{name} {value:.4g}" for name, value in self._columns(r, phase).items())
+                raise RunError(
+                    f"{run.name}: all {evaluated} evaluations of phase {phase} scored NaN or infinity, under the body "
+                    f"{body}: the physics of {self.config.task} cannot simulate it, and training would go on with an "
+                    f"empty archive; change the schedule (`smol-dsl check --task {self.config.task}` proves every "
+                    "actuator's and link's factor within the range the task's physics takes)"
+                )
+        self._phase_evaluations[:] = 0
+        self._phase_non_finite[:] = 0
 
     def reevaluate(self, phase: int) -> None:
         """Every archive re-scored in its run's body of `phase`, thinned by extinction."""
@@ -291,6 +311,8 @@ class Training:
             state.generation = generation
             state.evaluations += self.config.batch_size
             state.non_finite += int(dropped[r])
+            self._phase_evaluations[r] += self.config.batch_size
+            self._phase_non_finite[r] += int(dropped[r])
         self._record(metrics, ["reseed" if reseeded[r] else "train" for r in range(len(self.runs))], dropped)
 
     def _bodies_of(self, phase: int) -> jax.Array:

@@ -9,6 +9,7 @@ built. A target in a channel's `[...]` is a name or a group of the part its kind
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -70,6 +71,12 @@ class Anatomy:
                 chosen.add(names.index(name))
         return tuple(sorted(chosen))
 
+    def part_names(self, kind: str) -> tuple[str, ...]:
+        """What a kind's resolved factors are per: the actuators (gear), the links (mass), or
+        the whole body (friction, gravity: one factor, named as the kind)."""
+        part = CHANNEL_KINDS[kind].part
+        return self.names(part) if part is not None else (kind,)
+
     def describe_part(self, part: str) -> str:
         """`actuators: a, b, c; groups: left_leg (a, b)`: what a channel of this part can name."""
         text = f"{part}: {', '.join(self.names(part))}"
@@ -77,3 +84,49 @@ class Anatomy:
         if groups:
             text += "; groups: " + ", ".join(f"{g} ({', '.join(members)})" for g, members in groups.items())
         return text
+
+
+def resolve(anatomy: Anatomy | None, factors: Mapping[Channel, float]) -> dict[str, tuple[float, ...]]:
+    """The factor each part of the body gets from channels' factors: per kind, the product of
+    the factors of the kind's channels that reach each actuator (gear), link (mass) or the
+    whole body (friction, gravity), as the physics multiplies them (`tasks.body`). Kinds no
+    channel scales are left out; without an anatomy (`None`) only channels without targets
+    can be resolved, and gear and mass are one factor for the whole body.
+
+    >>> from smol_dsl.tasks import task_spec
+    >>> from smol_dsl.language.channels import Channel
+    >>> walker = task_spec("walker2d").anatomy
+    >>> resolve(walker, {Channel("mass"): 2.0, Channel("mass", ("torso",)): 0.5})["mass"][:2]
+    (1.0, 2.0)
+    """
+    resolved: dict[str, list[float]] = {}
+    for channel, factor in factors.items():
+        if anatomy is None:
+            if channel.targets:
+                raise ValueError(f"{channel.name}: a body without an anatomy has no parts to name")
+            names: tuple[str, ...] = (channel.kind,)
+            reached = None
+        else:
+            names = anatomy.part_names(channel.kind)
+            reached = anatomy.indices(channel)
+        parts = resolved.setdefault(channel.kind, [1.0] * len(names))
+        for index in range(len(names)) if reached is None else reached:
+            parts[index] *= factor
+    return {kind: tuple(parts) for kind, parts in resolved.items()}
+
+
+def resolved_names(anatomy: Anatomy | None, kind: str) -> tuple[str, ...]:
+    """The parts `resolve` gives a kind's factors for, in order."""
+    return anatomy.part_names(kind) if anatomy is not None else (kind,)
+
+
+def same_body(a: Mapping[str, tuple[float, ...]], b: Mapping[str, tuple[float, ...]]) -> bool:
+    """Whether two resolved bodies are the same robot: every part's factor equal (up to the
+    rounding of multiplying the same factors in another order), a kind one of them leaves
+    out being 1 throughout."""
+    for kind in {*a, *b}:
+        size = len(a[kind] if kind in a else b[kind])
+        mine, theirs = a.get(kind, (1.0,) * size), b.get(kind, (1.0,) * size)
+        if len(mine) != len(theirs) or not all(math.isclose(x, y, rel_tol=1e-12) for x, y in zip(mine, theirs)):
+            return False
+    return True

@@ -60,11 +60,14 @@ def scale_gear(sys: System, factor: jax.Array) -> System:
     return sys.replace(actuator=sys.actuator.replace(gear=sys.actuator.gear * factor))
 
 
-def _factor(
+def kind_factor(
     anatomy: Anatomy | None, channels: Sequence[Channel], body: jax.Array, kind: str, size: int
 ) -> jax.Array | None:
-    """The product of the kind's channels' factors: a scalar (every channel covers all), a
-    (size,) array (some cover only a part), or None (no channel of this kind)."""
+    """The factor the physics gives each of a kind's `size` parts (actuators for gear, links
+    for mass, 1 for friction and gravity): the product, in channel order, of the factors of
+    the kind's channels that reach it; a scalar (every channel covers all), a (size,) array
+    (some cover only a part), or None (no channel of this kind). What `modulation` multiplies
+    `sys` by, and what `tasks.ranges` bounds."""
     factor: jax.Array | None = None
     for c, channel in enumerate(channels):
         if channel.kind != kind:
@@ -115,16 +118,16 @@ def modulation(anatomy: Anatomy | None, channels: Sequence[Channel]) -> Modulate
                 f"the anatomy has {len(anatomy.actuators)} actuators and {len(anatomy.links)} links; this sys has "
                 f"{actuators} and {links}"
             )
-        gear = _factor(anatomy, channels, body, "gear", actuators)
+        gear = kind_factor(anatomy, channels, body, "gear", actuators)
         if gear is not None:
             sys = scale_gear(sys, gear)
-        mass = _factor(anatomy, channels, body, "mass", links)
+        mass = kind_factor(anatomy, channels, body, "mass", links)
         if mass is not None:
             sys = _scale_mass(sys, jnp.broadcast_to(mass, (links,)))
-        friction = _factor(anatomy, channels, body, "friction", 1)
+        friction = kind_factor(anatomy, channels, body, "friction", 1)
         if friction is not None:
             sys = sys.replace(geom_friction=sys.geom_friction * friction, pair_friction=sys.pair_friction * friction)
-        gravity = _factor(anatomy, channels, body, "gravity", 1)
+        gravity = kind_factor(anatomy, channels, body, "gravity", 1)
         if gravity is not None:
             sys = sys.replace(gravity=sys.gravity * gravity, opt=sys.opt.replace(gravity=sys.opt.gravity * gravity))
         return sys

@@ -8,14 +8,39 @@ network); "quick" is sized so that a run takes a few minutes on 2 CPU cores. Raw
 cores) run at about 410 walker2d evaluations/s (batch 128), 90 halfcheetah (64), 145
 ant_omni (64), 640 hopper (128) and 155 ant_uni (64): a quick preset's evaluations take
 1.5 to 3 minutes of raw rollouts.
+
+Factor ranges: each task states, per kind of channel, the factors its physics takes
+(`tasks.ranges`): those at which `benchmarks/factor_ranges.py` found every rollout of 16
+random policies finite (the paper's episode length, 1000 steps, 100 for ant_omni), on a grid
+of 8 factors per decade from 1e-36 to 1e36, so each stated end lies within a factor 1.34 of
+the first factor that failed. Brax's spring pipeline simulates most bodies far beyond sense
+without overflowing: what breaks it is a gear or a gravity so large that the state
+overflows, or a body so light that its links' accelerations do (halfcheetah below 0.2 of its
+mass, the ants below about 0.02).
 """
 
 from __future__ import annotations
 
+from smol_dsl.language.float32 import SAFE_MAX, SAFE_MIN
 from smol_dsl.tasks.anatomy import Anatomy
+from smol_dsl.tasks.ranges import FactorRange
 from smol_dsl.tasks.registry import TaskSpec
 
 DUTY_FACTORS = ((0.0, 0.0), (1.0, 1.0))  # two feet, each in contact a proportion of the steps
+
+
+def measured(episode_length: int, **finite: tuple[float, float]) -> dict[str, FactorRange]:
+    """Each kind's stated range: the factors (low, high) at which every rollout of
+    `benchmarks/factor_ranges.py` stayed finite, within float32's safe range."""
+    return {
+        kind: FactorRange(
+            max(low, SAFE_MIN),
+            min(high, SAFE_MAX),
+            f"where random policies' {episode_length}-step rollouts stay finite, benchmarks/factor_ranges.py",
+        )
+        for kind, (low, high) in finite.items()
+    }
+
 
 WALKER2D = TaskSpec(
     name="walker2d",
@@ -31,6 +56,10 @@ WALKER2D = TaskSpec(
         "quick": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("foot", "foot_left")},
+    factor_ranges=measured(
+        1000, gear=(1e-36, 1.33e22), mass=(7.5e-8, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e23)
+    ),
+    observation_size=17,  # the policy's input (a test builds the task and checks it)
     anatomy=Anatomy(
         actuators=("thigh_joint", "leg_joint", "foot_joint", "thigh_left_joint", "leg_left_joint", "foot_left_joint"),
         links=("torso", "thigh", "leg", "foot", "thigh_left", "leg_left", "foot_left"),
@@ -56,6 +85,10 @@ HALFCHEETAH = TaskSpec(
         "quick": dict(batch_size=64, episode_length=100, evaluations=8_192, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("bfoot", "ffoot")},
+    factor_ranges=measured(
+        1000, gear=(1e-36, 2.37e18), mass=(0.237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1.78e7)
+    ),
+    observation_size=17,  # the policy's input (a test builds the task and checks it)
     anatomy=Anatomy(
         actuators=("bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot"),
         links=("torso", "bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot"),
@@ -89,6 +122,10 @@ ANT_OMNI = TaskSpec(
         "paper": dict(batch_size=1024, episode_length=100, hidden_layer_sizes=(256, 256)),
         "quick": dict(batch_size=64, episode_length=100, evaluations=12_800, hidden_layer_sizes=(256, 256)),
     },
+    factor_ranges=measured(
+        100, gear=(1e-36, 4.22e20), mass=(0.00237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 4.22e7)
+    ),
+    observation_size=27,  # the policy's input (a test builds the task and checks it)
     anatomy=ANT_ANATOMY,
 )
 
@@ -106,6 +143,10 @@ HOPPER = TaskSpec(
         "quick": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("foot",)},
+    factor_ranges=measured(
+        1000, gear=(1e-36, 1.78e22), mass=(7.5e-9, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1e36)
+    ),
+    observation_size=11,  # the policy's input (a test builds the task and checks it)
     anatomy=Anatomy(
         actuators=("thigh_joint", "leg_joint", "foot_joint"),
         links=("torso", "thigh", "leg", "foot"),
@@ -128,5 +169,9 @@ ANT_UNI = TaskSpec(
         "quick": dict(batch_size=64, episode_length=100, evaluations=25_600, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": tuple(f"lower_leg_{i}" for i in "1234")},
+    factor_ranges=measured(
+        1000, gear=(1e-36, 4.22e20), mass=(0.00562, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e7)
+    ),
+    observation_size=27,  # the policy's input (a test builds the task and checks it)
     anatomy=ANT_ANATOMY,
 )

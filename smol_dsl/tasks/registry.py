@@ -17,10 +17,13 @@ from dataclasses import dataclass, field
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.tasks.ranges import check_resolved_factors
+
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
     from smol_dsl.tasks.anatomy import Anatomy
     from smol_dsl.tasks.base import Task
+    from smol_dsl.tasks.ranges import FactorRange
 
 PRESET_NAMES = ("quick", "paper")
 
@@ -45,6 +48,12 @@ class TaskSpec:
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     details: Mapping[str, Any] = field(default_factory=dict)  # for the factory, e.g. the feet's link names
     anatomy: Anatomy | None = None  # the actuators and links a schedule's channels can name
+    factor_ranges: Mapping[str, FactorRange] = field(default_factory=dict)
+    """Per kind of channel, the resolved factors the task's physics takes (`tasks.ranges`;
+    float32's safe range for a kind it leaves out)."""
+    observation_size: int | None = None
+    """The length of an observation, where known without building the task (archives'
+    policies are checked against it)."""
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
@@ -59,12 +68,15 @@ class TaskSpec:
 
     def check_schedule(self, schedule: Schedule) -> None:
         """Refuse, with a located ScheduleError, a schedule whose channels name actuators or
-        links this task's body lacks (or any, for a task without an anatomy)."""
+        links this task's body lacks (or any, for a task without an anatomy), or under which
+        an actuator's, link's or the whole body's factor (the product of the channels that
+        reach it) may leave `factor_ranges`."""
         anatomy = self.anatomy
         if anatomy is None:
             schedule.check_targets(None, self.name)
         else:
             schedule.check_targets(anatomy.targets(), self.name, anatomy.listing())
+        check_resolved_factors(schedule, anatomy, self.factor_ranges, self.name)
 
     def make(self, **options: Any) -> Task:
         """Build the task (imports JAX and Brax); options (episode_length,

@@ -24,9 +24,14 @@ class Tail(Shape):
         return self.single_piece(segment, segment.final)
 
     def float32_error(self, segment: SymbolicSegment, piece: Piece, low: float, high: float) -> float:
-        """0 when the value is a float32 (1, 0.5), else one rounding of it."""
+        """0 when the value is a float32 (1, 0.5), else one rounding of it (beyond float32's range
+        too: step 7 then refuses the value by its range)."""
         value = piece.expr
-        rounded = Fraction(float(np.float32(float(value))))
+        with np.errstate(over="ignore"):
+            single = float(np.float32(float(value)))
+        if not np.isfinite(single):
+            return UNIT * abs(high)
+        rounded = Fraction(single)
         exact = value.is_Rational and rounded == Fraction(int(value.p), int(value.q))
         return 0.0 if exact else UNIT * abs(high)
 
