@@ -123,7 +123,7 @@ def test_a_sweep_trains_schedules_of_different_channels_together(mixed_sweep):
 
 def test_report_refuses_schedules_whose_final_bodies_differ(mixed_sweep):
     out, _, results = mixed_sweep
-    with pytest.raises(ReportError, match=r"channel gear\[left_leg\] ends at 0\.5 in Leg damage .* and at 1 in"):
+    with pytest.raises(ReportError, match=r"thigh_left_joint.s gear factor ends at 0\.5 in Leg damage .* and at 1 in"):
         load_runs([out])
     same_body = [result.out_dir for result in results if "leg-damage" not in result.out_dir.name]
     assert list(load_runs(same_body)) == ["Vanilla MAP-Elites", "Growth"]
