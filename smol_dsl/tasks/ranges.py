@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 from smol_dsl.errors import ScheduleError
 from smol_dsl.language.channels import CHANNEL_KINDS, Channel
 from smol_dsl.language.float32 import SAFE_MAX, SAFE_MIN
-from smol_dsl.tasks.anatomy import resolved_names
+from smol_dsl.tasks.anatomy import resolve, resolved_names
 
 if TYPE_CHECKING:
     from smol_dsl.language.curve import Curve
@@ -81,18 +81,15 @@ def check_resolved_factors(
     or the whole body's factor (the product of the channels that reach it) may leave the
     task's range for its kind. The targets must have been checked (`TaskSpec.check_schedule`)."""
     channels = schedule.channels
-    for kind in dict.fromkeys(channel.kind for channel in channels):
+    lows = resolve(anatomy, {channel: schedule.curve(channel).certificate.minimum for channel in channels})
+    highs = resolve(anatomy, {channel: schedule.curve(channel).certificate.maximum for channel in channels})
+    for kind, parts in lows.items():
         allowed = factor_range(ranges, kind)
-        for index, part in enumerate(resolved_names(anatomy, kind)):
-            found = reaching(anatomy, channels, kind, index)
-            if not found:
-                continue
-            certificates = [schedule.curve(channel).certificate for channel in found]
-            low = math.prod(certificate.minimum for certificate in certificates)
-            high = math.prod(certificate.maximum for certificate in certificates)
+        for index, (part, low, high) in enumerate(zip(resolved_names(anatomy, kind), parts, highs[kind], strict=True)):
             if low in allowed and high in allowed:
                 continue
             too_high = high not in allowed
+            found = reaching(anatomy, channels, kind, index)
             _refuse(schedule, found, part, kind, task, allowed, high if too_high else low, too_high)
 
 
