@@ -130,7 +130,8 @@ def read_run(directory: Path) -> RunRecord:
     certificate = read_certificate(directory / CERTIFICATE_FILE)
     source = read_text(directory / SCHEDULE_FILE)
     schedule = _schedule_of(directory, source, config)
-    _check_certificate(directory, certificate, schedule)
+    final_body = {channel.name: value for channel, value in schedule.final_body.items() if value != 1}
+    _check_certificate(directory, certificate, schedule, final_body)
     rows = read_metrics(directory / METRICS_FILE, config, metrics_schema(schedule.channels))
     run = RunRecord(
         directory,
@@ -139,7 +140,7 @@ def read_run(directory: Path) -> RunRecord:
         source,
         float(schedule.tail_start),
         rows,
-        final_body={channel.name: value for channel, value in schedule.final_body.items() if value != 1},
+        final_body=final_body,
         channels=schedule.channels,
         body=resolve(task_spec(config.task).anatomy, schedule.final_body),
     )
@@ -208,20 +209,20 @@ def _schedule_of(directory: Path, source: str, config: RunConfig) -> Schedule:
     return parsed
 
 
-def _check_certificate(directory: Path, certificate: CertificateRecord, schedule: Schedule) -> None:
+def _check_certificate(
+    directory: Path, certificate: CertificateRecord, schedule: Schedule, final_body: Mapping[str, float]
+) -> None:
     """certificate.json says what verifying schedule.sched again proves: the same channels,
-    the same final body, the same start of the tail."""
-    final = {channel.name: value for channel, value in schedule.final_body.items() if value != 1}
+    the same final body (its factors other than 1), the same start of the tail."""
     found = {
         "channels": (certificate.channels, schedule.channels),
-        "final_body": (certificate.final_body, final),
+        "final_body": (certificate.final_body, final_body),
+        "tail_start": (certificate.tail_start, float(schedule.tail_start)),
     }
-    differing = [name for name, (said, proven) in found.items() if said != proven]
-    if not math.isclose(certificate.tail_start, float(schedule.tail_start), rel_tol=1e-12, abs_tol=1e-15):
-        differing.append("tail_start")
-    if differing:
-        name = differing[0]
-        said, proven = found[name] if name in found else (certificate.tail_start, float(schedule.tail_start))
+    for name, (said, proven) in found.items():
+        same = math.isclose(said, proven, rel_tol=1e-12, abs_tol=1e-15) if name == "tail_start" else said == proven
+        if same:
+            continue
         raise RunDirectoryError(
             f"{directory / CERTIFICATE_FILE}: its {name!r} ({_shown(said)}) is not what {SCHEDULE_FILE} proves "
             f"({_shown(proven)}); one of the two files was edited or comes from another run: rerun the run, "
