@@ -1,5 +1,6 @@
 """Checkpoints: written in the background (one at a time, skipped while busy, errors
-surfaced), and refused on resume when damaged, another run's, or shaped for another policy."""
+surfaced) from one host copy, and refused on resume when damaged, another run's, or shaped
+for another policy."""
 
 from __future__ import annotations
 
@@ -82,6 +83,22 @@ def test_host_copy_owns_its_memory():
     copy = host_copy(device_array)
     assert not np.shares_memory(copy, np.asarray(device_array))
     np.testing.assert_array_equal(copy, np.arange(8.0))
+
+
+@pytest.mark.parametrize("rows", [None, 1, 3, 6, slice(1, 2), slice(2, 5), slice(4, 6)])
+def test_host_copy_of_an_array_split_over_devices_is_one_copy_of_the_rows_asked_for(rows):
+    """Filled shard by shard: the JAX array keeps no cached host copy of itself (which
+    `np.asarray` would leave behind, a second copy of every archive in a checkpoint)."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    devices = jax.devices()[:2]
+    mesh = Mesh(np.asarray(devices).reshape(len(devices), 1), ("runs", "population"))
+    values = np.arange(6 * 5 * 3, dtype=np.float32).reshape(6, 5, 3)
+    split = jax.device_put(values, NamedSharding(mesh, PartitionSpec("runs")))
+    copy = host_copy(split, rows)
+    expected = values if rows is None else values[rows if isinstance(rows, slice) else slice(0, rows)]
+    np.testing.assert_array_equal(copy, expected)
+    assert copy.flags.owndata and getattr(split, "_npy_value", None) is None
 
 
 @pytest.mark.parametrize("damage", ["truncated", "empty", "flipped"])

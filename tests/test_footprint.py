@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from smol_dsl.cli import main
@@ -79,6 +86,41 @@ def test_batch_estimate_is_within_twice_the_compiled_programs_memory():
     assert 0.5 < footprint.batch_bytes / working < 2.0
 
 
+def test_archive_programs_update_and_read_archives_in_place():
+    """Runs one after another (runs_per_step 1) must not cost a copy of the archives: the
+    compiled programs that read or update them need far less than one archive besides."""
+    task = make_task("walker2d", episode_length=5, hidden_layer_sizes=(64, 64))
+    devices = jax.devices()[:1]
+    engine = Engine(task, batch_size=8, iso_sigma=0.005, line_sigma=0.05, devices=devices, runs_per_step=1, num_runs=4)
+    archives = engine.empty_archives(jax.random.uniform(jax.random.key(0), (4, 256, 2)))
+    keys = engine.put(jax.random.split(jax.random.key(1), 4))
+    archive_bytes = sum(leaf.nbytes for leaf in jax.tree.leaves(archives))
+    genotypes, _ = engine._ask(archives, keys)
+    fitnesses, descriptors = jnp.zeros((4, 8)), jnp.zeros((4, 8, 2))
+    programs = {
+        "ask": engine._ask.lower(archives, keys),
+        "tell": engine._tell.lower(archives, genotypes, fitnesses, descriptors),
+        "metrics": engine._metrics.lower(archives),
+    }
+    for name, lowered in programs.items():
+        temporary = lowered.compile().memory_analysis().temp_size_in_bytes
+        assert temporary < archive_bytes / 8, (name, temporary, archive_bytes)
+
+
+def test_runs_in_groups_equal_the_runs_vmapped():
+    from smol_dsl.runner.engine import in_run_groups
+
+    def one_run(x, key):
+        return x.sum() + jax.random.normal(key, ()), x * 2
+
+    xs = jnp.arange(6 * 4.0).reshape(6, 4)
+    keys = jax.random.split(jax.random.key(3), 6)
+    expected = jax.vmap(one_run)(xs, keys)
+    for group in (1, 2, 4, 6, 9):  # 4: groups of 3, the largest divisor of the 6 runs up to 4
+        for got, want in zip(jax.jit(lambda a, k, g=group: in_run_groups(one_run, (a, k), g))(xs, keys), expected):
+            np.testing.assert_array_equal(got, want)
+
+
 def test_a_sweep_too_big_for_the_device_is_refused_with_the_most_seeds_that_fit():
     config = preset_config("ant_omni", "paper")
     device = FakeAccelerator(16)
@@ -138,3 +180,77 @@ def test_cli_refuses_a_sweep_whose_archives_cannot_fit(tmp_path, capsys):
     err = capsys.readouterr().err
     assert re.search(r"error: 16000 runs of ant_omni need more than .* (At most --seeds \d+|Not even one run) fit", err)
     assert "Traceback" not in err and not out.exists()
+
+
+class FakeHostCpu:
+    """A CPU device as JAX describes one: no allocator limit, the host's memory is its."""
+
+    platform = "cpu"
+
+
+def test_a_sweep_too_big_for_the_host_is_refused_with_the_most_seeds_that_fit():
+    config = preset_config("ant_omni", "paper")
+    devices = [FakeHostCpu(), FakeHostCpu()]
+    baseline = 500 * 10**6
+    with pytest.raises(RunError) as refused:
+        fit_sweep(config, 1, range(1000), devices, baseline_bytes=baseline)
+    message = str(refused.value)
+    assert "of host memory that the 2 cpu devices share" in message
+    assert "for this process and its compiled programs" in message and "of archives held twice" in message
+    most = int(re.search(r"At most --seeds (\d+) fits with 1 schedule\(s\)", message).group(1))
+    assert most > 1
+    fitting = fit_sweep(config, 1, range(most), devices, baseline_bytes=baseline)
+    assert fitting.fits() and fitting.needed_bytes <= fitting.available_bytes
+    with pytest.raises(RunError, match=f"At most --seeds {most} fits"):
+        fit_sweep(config, 1, range(most + 1), devices, baseline_bytes=baseline)  # just over the limit
+
+
+SWEEP_FLAGS = ["--evals", "192", "--batch-size", "64", "--phases", "2", "--episode-length", "10", "--no-progress"]
+_SIZE = re.compile(r"= ([\d.]+) (kB|MB|GB) of [\d.]+ [kMGT]B host memory")
+_UNITS = {"kB": 1e3, "MB": 1e6, "GB": 1e9}
+
+
+def _sweeps(runs: list[tuple[int, Path]], centroids: int, *flags: str) -> list[tuple[str, float]]:
+    """`smol-dsl sweep` processes as a user starts them, all at once: each one's output and
+    the peak of its resident memory as the kernel counts it (VmHWM, read from outside until
+    it exits: `ru_maxrss` of a child would include the memory of the process it was forked
+    from)."""
+    started = []
+    for seeds, out in runs:
+        command = [sys.executable, "-c", "from smol_dsl.cli import main; raise SystemExit(main())", "sweep"]
+        command += ["ant_omni", "vanilla", "--seeds", str(seeds), "--centroids", str(centroids), "--out", str(out)]
+        log = tempfile.TemporaryFile("w+")
+        process = subprocess.Popen([*command, *SWEEP_FLAGS, *flags], stdout=log, stderr=subprocess.STDOUT, text=True)
+        started.append((process, log))
+    peaks = [0] * len(started)
+    while any(process.poll() is None for process, _ in started):
+        for index, (process, _) in enumerate(started):
+            with contextlib.suppress(OSError, AttributeError):  # not running any more
+                status = Path(f"/proc/{process.pid}/status").read_text()
+                peaks[index] = max(peaks[index], int(re.search(r"VmHWM:\s+(\d+) kB", status).group(1)) * 1024)
+        time.sleep(0.02)
+    results = []
+    for (process, log), peak in zip(started, peaks, strict=True):
+        log.seek(0)
+        output = log.read()
+        log.close()
+        assert process.returncode == 0, output[-3000:]
+        results.append((output, float(peak)))
+    return results
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the peak resident memory is read from Linux's /proc")
+def test_the_estimate_is_within_15_percent_of_the_measured_peak_of_1_4_and_10_ant_runs(tmp_path):
+    """Sweeps as users start them, each in its own process: the estimate the sweep prints
+    against the most memory it held (archives of 256 cells, ~77 MB a run)."""
+    runs = [(seeds, tmp_path / f"sweep-{seeds}") for seeds in (1, 4, 10)]
+    estimates = [_SIZE.search(output).groups() for output, _ in _sweeps(runs, 256, "--dry-run")]
+    peaks = [peak for _, peak in _sweeps(runs, 256)]  # side by side: each process's own peak
+    measured = {
+        seeds: (float(number) * _UNITS[unit], peak)
+        for (seeds, _), (number, unit), peak in zip(runs, estimates, peaks, strict=True)
+    }
+    shown = {seeds: f"estimate {e / 1e9:.2f} GB, peak {p / 1e9:.2f} GB" for seeds, (e, p) in measured.items()}
+    print(shown)
+    for estimate, peak in measured.values():
+        assert abs(estimate - peak) <= 0.15 * peak, shown

@@ -59,28 +59,57 @@ class RunState:
     finished: bool = False
 
 
-def host_copy(leaf: Any) -> np.ndarray:
-    """A device array's values in host memory that nothing else writes to.
+def host_copy(leaf: Any, rows: int | slice | None = None) -> np.ndarray:
+    """A device array's values in host memory that nothing else writes to, made with one
+    host copy: all of them, or the rows along the leading axis that `rows` selects (the
+    first `rows`, or a slice with step 1).
 
     On a CPU, `np.asarray` of a JAX array can be a view of the device buffer, which the next
     generation reuses (its archive is donated); a checkpoint written in the background needs
-    its own copy. From an accelerator, `np.asarray` already copies.
+    its own copy. For an array split over several devices, `np.asarray` would assemble a
+    host array and keep it cached on the JAX array for as long as that lives (a second host
+    copy of every archive); so the copy is filled shard by shard instead, each shard read
+    as a view on a CPU (or transferred alone from an accelerator).
     """
-    array = np.asarray(leaf)
-    on_cpu = isinstance(leaf, jax.Array) and all(d.platform == "cpu" for d in leaf.sharding.device_set)
-    return array.copy() if on_cpu else array
+    if isinstance(rows, int):
+        rows = slice(0, rows)
+    if not isinstance(leaf, jax.Array):
+        array = np.asarray(leaf)
+        return np.array(array[rows] if rows is not None and array.ndim else array)
+    if rows is None or not leaf.ndim:
+        low, high = 0, leaf.shape[0] if leaf.ndim else 0
+    else:
+        low, high, _ = rows.indices(leaf.shape[0])
+    copy = np.empty((max(high - low, 0), *leaf.shape[1:]) if leaf.ndim else (), dtype=leaf.dtype)
+    copied: set[tuple] = set()
+    for shard in leaf.addressable_shards:
+        bounds = tuple(part.indices(size)[:2] for part, size in zip(shard.index, leaf.shape, strict=True))
+        if bounds in copied:  # a replica of a shard already copied
+            continue
+        copied.add(bounds)
+        if not leaf.ndim:
+            copy[...] = np.asarray(shard.data)
+            continue
+        (first, last), rest = bounds[0], bounds[1:]
+        start, stop = max(first, low), min(last, high)
+        if start < stop:  # some of its rows are kept
+            values = np.asarray(shard.data)[start - first : stop - first]
+            copy[(slice(start - low, stop - low), *(slice(*b) for b in rest))] = values
+    return copy
 
 
-def archive_arrays(repertoire: MapElitesRepertoire) -> dict[str, np.ndarray]:
-    """An archive's arrays by name: `genotypes/<param path>`, fitnesses, descriptors, centroids."""
+def archive_arrays(repertoire: MapElitesRepertoire, runs: int | slice | None = None) -> dict[str, np.ndarray]:
+    """An archive's arrays by name (`genotypes/<param path>`, fitnesses, descriptors,
+    centroids), copied to host memory; of stacked archives, the runs that `runs` selects
+    (`host_copy`'s rows) only."""
     genotypes = repertoire.genotypes
     arrays = {
-        f"genotypes/{name}": host_copy(leaf)
+        f"genotypes/{name}": host_copy(leaf, runs)
         for name, leaf in zip(_leaf_names(genotypes), jax.tree.leaves(genotypes), strict=True)
     }
-    arrays["fitnesses"] = host_copy(repertoire.fitnesses)
-    arrays["descriptors"] = host_copy(repertoire.descriptors)
-    arrays["centroids"] = host_copy(repertoire.centroids)
+    arrays["fitnesses"] = host_copy(repertoire.fitnesses, runs)
+    arrays["descriptors"] = host_copy(repertoire.descriptors, runs)
+    arrays["centroids"] = host_copy(repertoire.centroids, runs)
     return arrays
 
 
@@ -106,10 +135,11 @@ class CheckpointWriter:
 
     Training goes on while a checkpoint reaches the disk; it waits only for the copy of the
     archives to host memory. A checkpoint `offer`ed while the previous one is still being
-    written is skipped, so a slow disk makes checkpoints rarer instead of training slower
-    (a resumed run restarts from an earlier boundary, with the same results). `flush` waits
-    for the write in flight and raises its error, if any; runs flush before they return,
-    also when interrupted, so their last checkpoint is whole on disk.
+    written is skipped (a resumed run restarts from an earlier boundary, with the same
+    results). `flush` waits for the write in flight and raises its error, if any; training
+    flushes before each re-evaluation (so that the host copy is gone before the archives
+    are held twice) and before it returns, also when interrupted, so that its last
+    checkpoint is whole on disk.
 
     >>> writer = CheckpointWriter()
     >>> writer.offer(path, lambda: checkpoint_arrays(archives, keys, states))  # doctest: +SKIP
@@ -317,8 +347,18 @@ def checkpoint_arrays(
     key, counters and metrics rows (all at the same generation), and `owner`, the runs it
     belongs to; copied to host memory."""
     runs = len(states)
-    arrays = {name: values[:runs] for name, values in archive_arrays(repertoires).items()}
-    arrays["keys"] = host_copy(jax.random.key_data(keys))[:runs]
+    return stacked_checkpoint(
+        archive_arrays(repertoires, runs), host_copy(jax.random.key_data(keys), runs), states, owner
+    )
+
+
+def stacked_checkpoint(
+    archives: dict[str, np.ndarray], key_data: np.ndarray, states: list[RunState], owner: dict[str, Any] | None = None
+) -> dict[str, np.ndarray]:
+    """`checkpoint_arrays` of archives and keys already in host memory (`archive_arrays`
+    of stacked archives, and the keys' `key_data`), one per state."""
+    arrays = dict(archives)
+    arrays["keys"] = key_data
     arrays["progress"] = np.asarray(json.dumps([_progress(state) for state in states]))
     if owner is not None:
         arrays["owner"] = np.asarray(json.dumps(owner))

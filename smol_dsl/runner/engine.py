@@ -10,9 +10,10 @@ and inserting the results, so that generations and re-evaluations share one scor
 program, the rollout, nearly all of the compilation. With `jax.shard_map` over a (runs,
 population) device mesh, runs are split across devices (independent: no communication),
 and devices left over split each offspring batch (its rollouts are gathered back). On each
-device the local runs are either vmapped together (accelerators: one big batch) or mapped
-one after another inside the program (`runs_per_step`; CPUs, where rollouts slow down as
-batches grow past ~128).
+device the local runs are either vmapped together (accelerators: one big batch) or their
+offspring made and scored in groups one after another inside the program (`runs_per_step`;
+CPUs, where rollouts slow down as batches grow past ~128); the programs that update
+archives are vmapped, so that donated archives are updated in place.
 
 A single run on several devices splits its population across all of them, so `smol-dsl
 run` uses the whole machine. Per run, the programs are the same per-run step with the same
@@ -85,12 +86,15 @@ class Engine:
         self.run_step = step = RunStep(map_elites, task.init_policies, self._score, batch_size)
         # a generation is ask, score, tell and a re-evaluation pick, score, insert: the same
         # scoring program for both (the rollout is nearly all of the compilation)
-        self._ask = self._over_runs(step.ask)
-        self._scores = self._over_runs(step.score)
+        self._ask = self._over_runs(step.ask, in_groups=True)
+        self._scores = self._over_runs(step.score, in_groups=True)
         self._tell = self._over_runs(step.tell, donate=(0,))
         self._pick = self._over_runs(step.pick)
         self._insert = self._over_runs(step.insert, donate=(0,))
         self._metrics = self._over_runs(lambda archive: default_qd_metrics(archive, task.qd_offset))
+        template = task.init_policies(jax.random.key(0), 1)
+        # made on the devices, each its own runs' share: no host-side or stacked copy
+        self._empty = self._over_runs(partial(empty_archive, template))
         self._split = jax.jit(split_in_two, out_shardings=self.sharding)
 
     def padded_runs(self, runs: int) -> int:
@@ -103,14 +107,18 @@ class Engine:
         return jax.device_put(tree, self.sharding)
 
     # ------------------------------------------------------------------ per-run programs
-    def _over_runs(self, run_fn: Any, donate: tuple[int, ...] = ()) -> Any:
-        runs_per_step = self.runs_per_step
+    def _over_runs(self, run_fn: Any, donate: tuple[int, ...] = (), in_groups: bool = False) -> Any:
+        """`run_fn` over every local run: vmapped, or `in_groups` of `runs_per_step` runs one
+        after another (making and scoring offspring, whose working memory grows with the
+        runs at once; `in_groups`). Programs that update archives are vmapped, so that a
+        donated archive is updated in place."""
+        runs_per_step = self.runs_per_step if in_groups else None
 
         def local(*args: Any) -> Any:
             local_runs = jax.tree.leaves(args)[0].shape[0]
             if runs_per_step is None or runs_per_step >= local_runs:
                 return jax.vmap(run_fn)(*args)
-            return jax.lax.map(lambda a: run_fn(*a), args, batch_size=runs_per_step)
+            return in_run_groups(run_fn, args, runs_per_step)
 
         spec = PartitionSpec(RUNS)
         sharded = jax.shard_map(local, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
@@ -134,9 +142,7 @@ class Engine:
     # ------------------------------------------------------------------ batched API
     def empty_archives(self, centroids: jax.Array) -> MapElitesRepertoire:
         """One empty archive per run, on its centroids (R, C, D)."""
-        template = self.task.init_policies(jax.random.key(0), 1)
-        archives = [empty_archive(template, c) for c in centroids]
-        return self.put(stack_runs(archives))
+        return self._empty(self.put(centroids))
 
     def split(self, keys: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Split every run's key in two, as `state.key, key = split(state.key)` does."""
@@ -235,6 +241,30 @@ def shared_engine(
         num_runs,
         tuple(channels),
     )
+
+
+def in_run_groups(run_fn: Any, args: tuple[Any, ...], group: int) -> Any:
+    """`vmap(run_fn)(*args)` computed a group of runs at a time (the largest divisor of the
+    runs that is at most `group`), in a loop that reads its arguments in place: `lax.map`
+    would copy every scanned argument whole, an archive among them."""
+    runs = jax.tree.leaves(args)[0].shape[0]
+    size = max(d for d in range(1, min(group, runs) + 1) if runs % d == 0)
+    mapped = jax.vmap(run_fn)
+    shapes = jax.eval_shape(mapped, *jax.tree.map(lambda x: x[:size], args))
+    results = jax.tree.map(lambda s: _zeros((runs, *s.shape[1:]), s.dtype), shapes)
+
+    def step(index: jax.Array, results: Any) -> Any:
+        first = index * size
+        part = mapped(*jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), args))
+        return jax.tree.map(lambda out, new: jax.lax.dynamic_update_slice_in_dim(out, new, first, 0), results, part)
+
+    return jax.lax.fori_loop(0, runs // size, step, results)
+
+
+def _zeros(shape: tuple[int, ...], dtype: Any) -> jax.Array:
+    if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(jnp.zeros(shape + jax.random.key_data(jax.random.key(0)).shape, jnp.uint32))
+    return jnp.zeros(shape, dtype)
 
 
 def split_in_two(keys: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -8,13 +8,25 @@ tracing, `task_sizes`), the settings and the device layout; `Footprint.describe`
 them with the evaluation rate a time budget needs, and `fits` says whether the devices'
 memory holds them. `largest_fitting` finds the most seeds (or runs per step) that fit.
 
+The runner holds at most two sets of archives at once: while re-evaluating (each archive
+and its fresh copy), while a checkpoint's host copy is made and written (training waits
+for it before the next re-evaluation), and at the end (every run's archive on its own
+beside the stacked ones). Where the devices share the host's memory (CPUs) the peak is
+what this process already holds, plus the compiled programs and the runtime
+(`RUNTIME_BYTES`), plus two sets of every device's archives (a device whose share of a
+batch is split holds a copy of the run's archive), plus every device's batches (or one
+run's host copy, at the end, if that is more).
+
 The working memory of a generation is an estimate: XLA decides the real figure when it
 compiles. `POLICY_COPIES` and `STATE_COPIES` were fitted to the compiled generation program
 (`memory_analysis`, CPU) of walker2d, halfcheetah and ant_omni at batches of 64 and 256 and
 episodes of 100 and 1000 steps: its temporary memory was 5.5 to 5.8 policies' parameters
 per offspring (two parents, the offspring, the variation's noise) plus a few environment
 states; the estimate came out 0.84 to 0.95 of it, hence slightly on the safe side. The
-tests hold it to within a factor of two of the compiled figure.
+tests hold it to within a factor of two of the compiled figure. `RUNTIME_BYTES` was fitted
+to the peak resident memory (VmHWM, read from outside) of `smol-dsl sweep` processes of 1,
+4 and 10 ant_omni runs of 256 cells on 2 CPU devices (jax 0.10): 1.66, 2.21 and 3.31 GB
+against estimates of 1.8, 2.1 and 3.2 GB; the tests hold every such estimate within 15%.
 """
 
 from __future__ import annotations
@@ -22,6 +34,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +50,7 @@ if TYPE_CHECKING:
 FLOAT_BYTES = 4
 POLICY_COPIES = 6  # policy parameters alive per offspring in a generation (measured; see the docstring)
 STATE_COPIES = 4  # environment states alive per rollout (measured; see the docstring)
+RUNTIME_BYTES = 900_000_000  # compiled programs, XLA's runtime and allocator (measured; see the docstring)
 BUDGET_HOURS = (1, 24, 72)
 
 
@@ -69,6 +83,19 @@ def host_memory_bytes() -> int:
     return total
 
 
+def process_bytes() -> int:
+    """The memory this process holds now (its resident set): imports, traced tasks and
+    whatever the caller has allocated, which a run started from it adds to."""
+    try:
+        resident_pages = int(Path("/proc/self/statm").read_text().split()[1])
+        return resident_pages * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        import resource
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # kB on Linux, bytes on macOS
+        return peak if sys.platform == "darwin" else peak * 1024
+
+
 def device_memory(devices: list) -> DeviceMemory:
     """What the JAX devices offer: an accelerator's allocator limit, or for CPU devices the
     host's memory, which they share."""
@@ -96,6 +123,7 @@ class Footprint:
     along_population: int
     runs_per_step: int | None  # runs a device advances at once (None: all of its runs)
     memory: DeviceMemory
+    baseline_bytes: int  # host memory the process holds before the run, and its compiled programs and runtime
 
     @property
     def batch_bytes(self) -> int:
@@ -109,7 +137,7 @@ class Footprint:
 
     @property
     def parallel_runs(self) -> int:
-        """Runs a device advances at once."""
+        """Runs a device rolls out at once."""
         return self.local_runs if self.runs_per_step is None else min(self.runs_per_step, self.local_runs)
 
     @property
@@ -126,29 +154,58 @@ class Footprint:
         return 2 * self.local_runs * self.archive_bytes
 
     @property
+    def offspring_bytes(self) -> int:
+        """One run's offspring batch, the policies it scores in a generation."""
+        return self.policy_bytes // POLICY_COPIES
+
+    @property
     def device_batch_bytes(self) -> int:
-        """One device's working memory for the runs it advances at once."""
-        return self.parallel_runs * (self.policy_bytes + self.rollout_bytes // self.along_population)
+        """One device's working memory in a generation: making and scoring the offspring of
+        `parallel_runs` runs at a time, and the offspring of every other local run, made
+        before any is scored."""
+        per_run = self.policy_bytes + self.rollout_bytes // self.along_population
+        return self.parallel_runs * per_run + (self.local_runs - self.parallel_runs) * self.offspring_bytes
 
     @property
     def device_bytes(self) -> int:
         return self.device_archive_bytes + self.device_batch_bytes
 
     @property
+    def devices_used(self) -> int:
+        return self.along_runs * self.along_population
+
+    @property
+    def held_archives_bytes(self) -> int:
+        """Every device's archives (padding, and copies where a run's batch is split, included)."""
+        return self.devices_used * self.local_runs * self.archive_bytes
+
+    @property
+    def host_peak_bytes(self) -> int:
+        """The most host memory the process holds at once, where the devices share it (CPUs):
+        two sets of archives and every device's batches (or, at the end, one run's host copy)."""
+        batches = self.devices_used * self.device_batch_bytes
+        return self.baseline_bytes + 2 * self.held_archives_bytes + max(batches, self.archive_bytes)
+
+    @property
+    def host_bytes(self) -> int:
+        """The host memory the process needs: with devices of their own (accelerators), what it
+        holds before the run and the checkpoint's host copy (and one run's, at the end)."""
+        if self.memory.shares_host:
+            return self.host_peak_bytes
+        return self.baseline_bytes + self.checkpoint_bytes + self.archive_bytes
+
+    @property
     def needed_bytes(self) -> int:
         """What the memory that is checked must hold: per device on accelerators; on CPUs,
-        every device's share plus the host copy a checkpoint is written from."""
-        if self.memory.shares_host:
-            return self.device_bytes * self.along_runs * self.along_population + self.checkpoint_bytes
-        return self.device_bytes
+        the process's peak in the host memory they share."""
+        return self.host_peak_bytes if self.memory.shares_host else self.device_bytes
 
     @property
     def available_bytes(self) -> int:
         return self.memory.bytes_per_device
 
     def fits(self) -> bool:
-        host_ok = self.memory.shares_host or self.checkpoint_bytes <= self.memory.host_bytes
-        return self.needed_bytes <= self.available_bytes and host_ok
+        return self.needed_bytes <= self.available_bytes and self.host_bytes <= self.memory.host_bytes
 
     @property
     def reevaluations(self) -> int:
@@ -168,17 +225,7 @@ class Footprint:
             f"policy: [{layers}] MLP, {self.observations} observations -> {self.actions} actions: "
             f"{self.parameters:,} parameters; archive: {config.num_centroids} cells, "
             f"{_size(self.archive_bytes)} per run, {_size(self.archives_bytes)} for {self.runs} run(s)",
-            f"device memory ({self.memory.label}: runs split {self.along_runs} way(s), each batch "
-            f"{self.along_population} way(s)): "
-            f"{_size(self.device_archive_bytes)} of archives while re-evaluating + {_size(self.device_batch_bytes)} "
-            f"for batches of {config.batch_size} ({self.parallel_runs} run(s) at once) "
-            f"= {_size(self.device_bytes)} per device"
-            + (
-                f"; with the checkpoint's host copy {_size(self.needed_bytes)} of {_size(self.available_bytes)} "
-                "host memory"
-                if self.memory.shares_host
-                else f" of {_size(self.available_bytes)}"
-            ),
+            self._memory_line(),
             f"checkpoint: {_size(self.checkpoint_bytes)}, rewritten in the background at up to "
             f"{boundaries} phase boundaries (at most {_size(self.checkpoint_bytes * boundaries)} written in all)"
             + _free_space(out_dir, self.checkpoint_bytes),
@@ -194,15 +241,37 @@ class Footprint:
         ]
         return "\n".join(lines)
 
+    def _memory_line(self) -> str:
+        layout = f"runs split {self.along_runs} way(s), each batch {self.along_population} way(s)"
+        batches = f"for batches of {self.config.batch_size} ({self.parallel_runs} run(s) at once)"
+        held = f"{_size(self.baseline_bytes)} for this process, its compiled programs and runtime"
+        if self.memory.shares_host:
+            archives = self.held_archives_bytes
+            return (
+                f"memory ({self.memory.label} sharing the host's; {layout}): {held} + {_size(2 * archives)} of "
+                f"archives held twice (re-evaluating, or beside the checkpoint's host copy) + "
+                f"{_size(self.host_peak_bytes - self.baseline_bytes - 2 * archives)} {batches} "
+                f"= {_size(self.needed_bytes)} of {_size(self.available_bytes)} host memory"
+            )
+        return (
+            f"device memory ({self.memory.label}: {layout}): {_size(self.device_archive_bytes)} of archives while "
+            f"re-evaluating + {_size(self.device_batch_bytes)} {batches} = {_size(self.device_bytes)} per device "
+            f"of {_size(self.available_bytes)}; host memory: {held} + {_size(self.checkpoint_bytes)} for the "
+            f"checkpoint's copy + {_size(self.archive_bytes)} for one run's = {_size(self.host_bytes)} of "
+            f"{_size(self.memory.host_bytes)}"
+        )
+
 
 def plan_footprint(
     config: RunConfig,
     runs: int,
     memory: DeviceMemory,
     runs_per_step: int | None = None,
+    baseline_bytes: int | None = None,
 ) -> Footprint:
     """The footprint of `runs` runs of `config` on these devices (runs_per_step None: all of
-    a device's runs at once)."""
+    a device's runs at once), started from a process that holds `baseline_bytes` (None:
+    this process, now) besides the programs it will compile."""
     sizes = task_sizes(config.task, tuple(config.hidden_layer_sizes))
     descriptors = sizes.descriptors
     archive = config.num_centroids * (sizes.parameters + 1 + 2 * descriptors) * FLOAT_BYTES
@@ -223,6 +292,7 @@ def plan_footprint(
         along_population=along_population,
         runs_per_step=runs_per_step,
         memory=memory,
+        baseline_bytes=(process_bytes() if baseline_bytes is None else baseline_bytes) + RUNTIME_BYTES,
     )
 
 
@@ -269,6 +339,7 @@ def fit_sweep(
     devices: Sequence[Any],
     runs_per_step: int | None = -1,
     part: tuple[int, int] = (0, 1),
+    baseline_bytes: int | None = None,
 ) -> Footprint:
     """The footprint of this process's share of a sweep (a run is a sweep of one schedule
     and one seed) on `devices`, or a RunError that says what does not fit and the most
@@ -276,15 +347,18 @@ def fit_sweep(
 
     `runs_per_step` as in `run_sweep`: -1 lets the device choose (one run at a time on a
     CPU; on an accelerator as many as fit, all of them if they do), None all of them.
+    `baseline_bytes` is the host memory the process holds before the sweep (None: this
+    process's, now).
     """
     memory = device_memory(list(devices))
     index, parts = part
+    baseline = process_bytes() if baseline_bytes is None else baseline_bytes
 
     def runs_with(count: int) -> int:
         return len(range(index, num_schedules * count, parts))
 
     def plan(runs: int, per_step: int | None) -> Footprint:
-        return plan_footprint(config, runs, memory, per_step)
+        return plan_footprint(config, runs, memory, per_step, baseline)
 
     runs = runs_with(len(seeds))
     automatic = runs_per_step == -1
@@ -303,13 +377,26 @@ def fit_sweep(
         if memory.shares_host
         else f"the {_size(least.available_bytes)} of one {memory.platform} device"
     )
-    message = (
-        f"{what} of {config.task} need more than {where}: {_size(least.archive_bytes)} of archive per run, "
-        f"held twice while it is re-evaluated ({_size(least.device_archive_bytes)} per device), plus "
-        f"{_size(least.device_batch_bytes)} for a batch of {config.batch_size}"
-        + (f" and the checkpoint's host copy ({_size(least.checkpoint_bytes)})" if memory.shares_host else "")
-        + f", {_size(least.needed_bytes)} in all. "
-    )
+    if memory.shares_host:
+        twice = 2 * least.held_archives_bytes
+        parts_text = (
+            f"{_size(least.baseline_bytes)} for this process and its compiled programs, {_size(twice)} of archives "
+            f"held twice (while re-evaluating, or beside the checkpoint's host copy), and "
+            f"{_size(least.host_peak_bytes - least.baseline_bytes - twice)} for batches of {config.batch_size}"
+        )
+    else:
+        parts_text = (
+            f"{_size(least.archive_bytes)} of archive per run, held twice while it is re-evaluated "
+            f"({_size(least.device_archive_bytes)} per device), plus {_size(least.device_batch_bytes)} for batches "
+            f"of {config.batch_size}"
+        )
+    if least.needed_bytes <= least.available_bytes:  # the devices hold it, the host does not
+        where = f"the {_size(memory.host_bytes)} of host memory"
+        parts_text = f"{_size(least.host_bytes)} for the process and the checkpoint's host copy"
+        total = least.host_bytes
+    else:
+        total = least.needed_bytes
+    message = f"{what} of {config.task} need more than {where}: {parts_text}, {_size(total)} in all. "
     most_seeds = largest_fitting(range(1, len(seeds)), lambda count: plan(runs_with(count), 1))
     if most_seeds is not None:
         message += (

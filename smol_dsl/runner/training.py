@@ -7,7 +7,10 @@ the paper's alpha, for a file that declares no channels), a traced (channels,) a
 run. At each phase boundary every archive is re-evaluated under its new body, thinned by
 its schedule's extinction probability and re-inserted into a fresh archive; a checkpoint
 is handed to the background writer right after, so an interrupted training resumes from
-its last boundary and ends with exactly the archives and metrics of an uninterrupted one."""
+its last boundary and ends with exactly the archives and metrics of an uninterrupted one.
+The next boundary waits for that write to end (when a whole phase was not long enough for
+it), so that no host copy of the archives is alive while they are held twice: at most two
+sets of archives are in memory at any time, what `footprint` sizes."""
 
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ from smol_dsl.runner.checkpoint import (
     checkpoint_arrays,
     load_checkpoint,
     save_checkpoint,
+    stacked_checkpoint,
     storage_error,
 )
 from smol_dsl.runner.config import RunError
@@ -203,8 +207,11 @@ class Training:
         if saved is not None:
             repertoires, keys, self.states = saved
             extra = len(self._seeds) - len(self.runs)
-            repertoires, keys = jax.tree.map(lambda x: jnp.concatenate([x] + [x[-1:]] * extra), (repertoires, keys))
-            self.repertoires, self.keys = self.engine.put(repertoires), self.engine.put(keys)
+
+            def placed(x: jax.Array) -> jax.Array:  # leaf by leaf: at most one leaf's padded copy more
+                return self.engine.put(jnp.concatenate([x] + [x[-1:]] * extra) if extra else x)
+
+            self.repertoires, self.keys = jax.tree.map(placed, (repertoires, keys))
         else:
             self._initial_population()
         self.logs = [
@@ -263,6 +270,9 @@ class Training:
                 phase = self.config.phase_of_generation(generation)
                 if phase != self.states[0].phase:
                     self.check_phase()
+                    # the last checkpoint's host copy is let go before the archives are held
+                    # twice, so that memory never holds both (the sizing counts on it)
+                    writer.flush()
                     self.reevaluate(phase)
                     if self.checkpoint is not None:
                         arrays = partial(checkpoint_arrays, self.repertoires, self.keys, self.states, self.owner)
@@ -345,17 +355,25 @@ class Training:
         and, the first time, its checkpoint marked finished (and so does a sweep's own
         checkpoint)."""
         newly_finished = self.finished and not all(state.finished for state in self.states)
+        if newly_finished:
+            for state in self.states:
+                state.finished = True
+        run_checkpoints = {run.directory / CHECKPOINT_FILE for run in self.runs if run.directory is not None}
+        if newly_finished and self.checkpoint is not None and self.checkpoint not in run_checkpoints:
+            # a sweep's own checkpoint first, before every run's archive is also held apart
+            save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
         host_keys = jax.device_get(jax.random.key_data(self.keys))
         results = []
         for r, (run, state) in enumerate(zip(self.runs, self.states, strict=True)):
-            repertoire = jax.tree.map(lambda x, r=r: x[r], self.repertoires)
+            repertoire = jax.tree.map(lambda x, r=r: run_of(x, r), self.repertoires)
             if run.directory is not None and self.finished:
+                arrays = archive_arrays(self.repertoires, slice(r, r + 1))  # one host copy of one run at a time
                 if newly_finished:
-                    state.finished = True
-                    single = jax.tree.map(lambda x, r=r: x[r : r + 1], self.repertoires)
-                    key = jax.random.wrap_key_data(host_keys[r : r + 1])
-                    save_checkpoint(run.directory / CHECKPOINT_FILE, single, key, [state], owner([run], run.config))
-                rundir.write_archive(run.directory / rundir.ARCHIVE_FILE, archive_arrays(repertoire))
+                    single = stacked_checkpoint(arrays, host_keys[r : r + 1], [state], owner([run], run.config))
+                    rundir.write_npz(run.directory / CHECKPOINT_FILE, single)
+                rundir.write_archive(
+                    run.directory / rundir.ARCHIVE_FILE, {name: values[0] for name, values in arrays.items()}
+                )
             seconds = time.perf_counter() - started
             results.append(
                 RunResult(
@@ -368,12 +386,18 @@ class Training:
                     seconds,
                 )
             )
-        run_checkpoints = {run.directory / CHECKPOINT_FILE for run in self.runs if run.directory is not None}
-        if newly_finished and self.checkpoint is not None and self.checkpoint not in run_checkpoints:
-            for state in self.states:
-                state.finished = True
-            save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
         return results
+
+
+def run_of(stacked: jax.Array, run: int) -> jax.Array:
+    """One run's slice of an array stacked along the runs axis, on the one device that holds
+    it (`stacked[run]` would be a program whose result every device of the mesh holds a copy
+    of)."""
+    for shard in stacked.addressable_shards:
+        first, last, _ = shard.index[0].indices(stacked.shape[0])
+        if first <= run < last:
+            return shard.data[run - first]
+    return stacked[run]
 
 
 def _run_metrics(metrics: dict[str, np.ndarray], run: int) -> dict[str, float]:
