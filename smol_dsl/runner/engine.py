@@ -108,10 +108,10 @@ class Engine:
 
     # ------------------------------------------------------------------ per-run programs
     def _over_runs(self, run_fn: Any, donate: tuple[int, ...] = (), in_groups: bool = False) -> Any:
-        """`run_fn` over every local run: vmapped, or `in_groups` of `runs_per_step` runs one
-        after another (making and scoring offspring, whose working memory grows with the
-        runs at once; `in_groups`). Programs that update archives are vmapped, so that a
-        donated archive is updated in place."""
+        """`run_fn` over every local run: vmapped, or, `in_groups`, `runs_per_step` runs at a
+        time one group after another (for making and scoring offspring, whose working memory
+        grows with the runs at once). Programs that read or update whole archives are
+        vmapped, so that a donated archive is updated in place."""
         runs_per_step = self.runs_per_step if in_groups else None
 
         def local(*args: Any) -> Any:

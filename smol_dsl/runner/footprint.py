@@ -13,7 +13,7 @@ and its fresh copy), while a checkpoint's host copy is made and written (trainin
 for it before the next re-evaluation), and at the end (every run's archive on its own
 beside the stacked ones). Where the devices share the host's memory (CPUs) the peak is
 what this process already holds, plus the compiled programs and the runtime
-(`RUNTIME_BYTES`), plus two sets of every device's archives (a device whose share of a
+(`runtime_bytes`), plus two sets of every device's archives (a device whose share of a
 batch is split holds a copy of the run's archive), plus every device's batches (or one
 run's host copy, at the end, if that is more).
 
@@ -23,10 +23,12 @@ compiles. `POLICY_COPIES` and `STATE_COPIES` were fitted to the compiled generat
 episodes of 100 and 1000 steps: its temporary memory was 5.5 to 5.8 policies' parameters
 per offspring (two parents, the offspring, the variation's noise) plus a few environment
 states; the estimate came out 0.84 to 0.95 of it, hence slightly on the safe side. The
-tests hold it to within a factor of two of the compiled figure. `RUNTIME_BYTES` was fitted
+tests hold it to within a factor of two of the compiled figure. `runtime_bytes` was fitted
 to the peak resident memory (VmHWM, read from outside) of `smol-dsl sweep` processes of 1,
-4 and 10 ant_omni runs of 256 cells on 2 CPU devices (jax 0.10): 1.66, 2.21 and 3.31 GB
-against estimates of 1.8, 2.1 and 3.2 GB; the tests hold every such estimate within 15%.
+4 and 10 ant_omni runs of 256 cells on 2 CPU devices: on jax 0.10 peaks of 1.59, 2.24 and
+3.29 GB against estimates of 1.7, 2.1 and 3.2 GB (0.9 GB of runtime), on jax 0.12 peaks of
+1.36, 2.11 and 3.14 GB against 1.5, 2.0 and 3.0 GB (0.7 GB); the tests hold every such
+estimate within 15%.
 """
 
 from __future__ import annotations
@@ -50,7 +52,21 @@ if TYPE_CHECKING:
 FLOAT_BYTES = 4
 POLICY_COPIES = 6  # policy parameters alive per offspring in a generation (measured; see the docstring)
 STATE_COPIES = 4  # environment states alive per rollout (measured; see the docstring)
-RUNTIME_BYTES = 900_000_000  # compiled programs, XLA's runtime and allocator (measured; see the docstring)
+# compiled programs, XLA's runtime and allocator, per jax line (measured; see the docstring)
+RUNTIME_BYTES_BY_JAX = {(0, 10): 900_000_000}
+RUNTIME_BYTES_LATER = 700_000_000  # jax 0.11 on (measured on 0.12)
+
+
+def runtime_bytes() -> int:
+    """What compiling and running the programs adds to a process, for the installed jax."""
+    import jax
+
+    line = tuple(int(part) for part in jax.__version__.split(".")[:2])
+    if line in RUNTIME_BYTES_BY_JAX:
+        return RUNTIME_BYTES_BY_JAX[line]
+    return RUNTIME_BYTES_LATER if line > max(RUNTIME_BYTES_BY_JAX) else RUNTIME_BYTES_BY_JAX[min(RUNTIME_BYTES_BY_JAX)]
+
+
 BUDGET_HOURS = (1, 24, 72)
 
 
@@ -182,8 +198,8 @@ class Footprint:
     @property
     def host_peak_bytes(self) -> int:
         """The most host memory the process holds at once, where the devices share it (CPUs):
-        two sets of archives and every device's batches (or, at the end, one run's host copy)."""
-        batches = self.devices_used * self.device_batch_bytes
+        two sets of archives and every run's batches (or, at the end, one run's host copy)."""
+        batches = self.along_runs * self.device_batch_bytes  # a run's batch split over devices: counted once (measured)
         return self.baseline_bytes + 2 * self.held_archives_bytes + max(batches, self.archive_bytes)
 
     @property
@@ -292,7 +308,7 @@ def plan_footprint(
         along_population=along_population,
         runs_per_step=runs_per_step,
         memory=memory,
-        baseline_bytes=(process_bytes() if baseline_bytes is None else baseline_bytes) + RUNTIME_BYTES,
+        baseline_bytes=(process_bytes() if baseline_bytes is None else baseline_bytes) + runtime_bytes(),
     )
 
 
