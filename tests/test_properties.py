@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from fractions import Fraction
-from itertools import pairwise
+from itertools import combinations, pairwise
 
 import jax
 import jax.numpy as jnp
@@ -457,7 +457,14 @@ def test_random_segments_draw_one_value_per_step(case: tuple[ScheduleSpec, int],
     if r.low < r.high:
         for (k0, b0), (k1, b1) in pairwise(zip(ks, bins)):
             assert (phases[k0] == phases[k1]) == (b0 == b1), (k0, k1, b0, b1)
-        assert len(set(phases[ks].tolist())) == len(set(bins)) == r.count
+        assert len(set(bins)) == r.count  # every step is shown
+        shown = dict(zip(bins, phases[ks].tolist(), strict=True))
+        # two steps show one value only where float32 rounds their draws to it (a narrow range
+        # near 1.6 holds some 40 000 float32 values: 38 draws collide 2% of the time)
+        resolution = 4 * float(np.spacing(np.float32(max(abs(r.low), abs(r.high)))))
+        for b0, b1 in combinations(shown, 2):
+            if shown[b0] == shown[b1]:
+                assert abs(float(draws[b0]) - float(draws[b1])) * float(r.high - r.low) <= resolution, (b0, b1)
 
 
 @settings(max_examples=examples(6), **COMMON)
