@@ -1,6 +1,10 @@
-"""Use a compiled schedule inside your own JAX / QDax loop.
+"""A compiled schedule in plain JAX: alpha per phase, jitted with the phase traced, and as an
+optax-style schedule of the step count.
 
 Run: python examples/use_with_jax.py
+
+For a QDax algorithm under a schedule (scoring in a body, re-evaluation at phase
+boundaries), see examples/qdax_map_elites.py, qdax_pga_me.py and qdax_cma_me.py.
 """
 
 import jax

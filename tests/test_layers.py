@@ -1,5 +1,5 @@
-"""The package's layers import downward only: language -> tasks -> rundir -> runner -> results
--> cli, annotation-only imports included (an import under TYPE_CHECKING still couples the
+"""The package's layers import downward only: language -> tasks -> qdax -> rundir -> runner ->
+results -> cli, annotation-only imports included (an import under TYPE_CHECKING still couples the
 modules). `errors` and `seeds` are the base every layer may use; the package's own names
 (`smol_dsl.load`, `__version__`: its front door, over language and tasks) only the CLI."""
 
@@ -9,7 +9,7 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent.parent / "smol_dsl"
-LAYERS = ("language", "tasks", "rundir", "runner", "results", "cli")
+LAYERS = ("language", "tasks", "qdax", "rundir", "runner", "results", "cli")
 BASE = ("errors", "seeds")
 
 

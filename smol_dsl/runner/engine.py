@@ -33,8 +33,9 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from qdax.utils.metrics import default_qd_metrics
 
 from smol_dsl.language.channels import GEAR, Channel
+from smol_dsl.qdax.reevaluation import reevaluation_chunks
 from smol_dsl.runner.layout import default_runs_per_step, mesh_shape
-from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites, reevaluation_chunks
+from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites
 from smol_dsl.tasks import make_task
 
 if TYPE_CHECKING:

@@ -21,32 +21,23 @@ the engine compiles separately so that the scoring is compiled once.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire, compute_cvt_centroids
 from qdax.core.emitters.mutation_operators import isoline_variation
 from qdax.core.emitters.standard_emitters import MixingEmitter
 from qdax.core.map_elites import MAPElites
 from qdax.utils.metrics import default_qd_metrics
 
+from smol_dsl.qdax.reevaluation import insert_chunk, pick_chunk
+from smol_dsl.qdax.scoring import drop_non_finite, initial_key
+
 Metrics = dict[str, jax.Array]
-
-
-def drop_non_finite(fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Mark results with a non-finite fitness or descriptor as empty (-inf, never inserted).
-
-    Returns the cleaned fitnesses and descriptors, and which results were finite.
-    """
-    finite = jnp.isfinite(fitnesses) & jnp.all(jnp.isfinite(descriptors), axis=-1)
-    fitnesses = jnp.where(finite, fitnesses, -jnp.inf)
-    descriptors = jnp.where(finite[:, None], descriptors, 0.0)
-    return fitnesses, descriptors, finite
 
 
 def make_map_elites(batch_size: int, qd_offset: float, iso_sigma: float, line_sigma: float) -> MAPElites:
@@ -85,41 +76,10 @@ def tell_finite(
     return repertoire, metrics, jnp.sum(~finite)
 
 
-def insert_survivors(
-    archive: MapElitesRepertoire,
-    genotypes: Any,
-    fitnesses: jax.Array,
-    descriptors: jax.Array,
-    valid: jax.Array,
-    survives: jax.Array,
-) -> tuple[MapElitesRepertoire, jax.Array]:
-    """Insert re-evaluated elites that are valid (not padding), survived extinction and
-    scored finite; also returns how many valid ones were non-finite."""
-    fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
-    fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
-    return archive.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
-
-
 def empty_archive(example_genotypes: Any, centroids: jax.Array) -> MapElitesRepertoire:
     """An archive with no elites on these centroids, for genotypes shaped like a batch's."""
     one = jax.tree.map(lambda x: x[0], example_genotypes)
     return MapElitesRepertoire.init_default(genotype=one, centroids=centroids)
-
-
-def reevaluation_chunks(filled: list[np.ndarray], batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Fixed-size chunks over each run's filled cells, up to the fullest run: per chunk,
-    cell indices and which of them are real, both (runs, batch_size). A short chunk is
-    padded by repeating its cells (padding is not kept); a run with no cells left gets an
-    all-invalid row."""
-    for start in range(0, max((len(cells) for cells in filled), default=0), batch_size):
-        index = np.zeros((len(filled), batch_size), dtype=np.int32)
-        valid = np.zeros((len(filled), batch_size), dtype=bool)
-        for run, cells in enumerate(filled):
-            chunk = cells[start : start + batch_size]
-            if len(chunk):
-                index[run] = np.resize(chunk, batch_size)
-                valid[run, : len(chunk)] = True
-        yield index, valid
 
 
 @dataclass(frozen=True)
@@ -144,8 +104,7 @@ class RunStep:
         """Offspring of the archive's elites by iso+line variation, or fresh random policies
         if the archive is empty (the first generation, or after extinction emptied it);
         also whether it was empty."""
-        ask_key, score_key = jax.random.split(key)
-        del score_key  # episodes start deterministically; the key is split as QDax's loop does
+        ask_key = initial_key(key)  # as QDax's `MAPElites.update` asks with `key` (scoring is deterministic)
         empty = ~jnp.any(repertoire.fitnesses > -jnp.inf)
         genotypes = jax.lax.cond(
             empty,
@@ -174,9 +133,8 @@ class RunStep:
     def pick(self, source: Any, index: jax.Array, key: jax.Array) -> tuple[Any, jax.Array, jax.Array]:
         """The genotypes of `source` at `index`, to re-evaluate; the run's next key, and the
         key of this chunk's extinction draws."""
-        key, score_key, death_key = jax.random.split(key, 3)
-        del score_key
-        return jax.tree.map(lambda x: x[index], source), key, death_key
+        genotypes, key, _, death_key = pick_chunk(source, index, key)  # episodes start deterministically
+        return genotypes, key, death_key
 
     def insert(
         self,
@@ -190,8 +148,7 @@ class RunStep:
     ) -> tuple[MapElitesRepertoire, jax.Array]:
         """Re-scored elites that are `valid` (not padding), survive extinction and scored
         finite, into `fresh`; returns it and how many valid ones were non-finite."""
-        survives = jax.random.uniform(death_key, (self.batch_size,)) >= extinction
-        return insert_survivors(fresh, genotypes, fitnesses, descriptors, valid, survives)
+        return insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
 
 
 def cvt_centroids(

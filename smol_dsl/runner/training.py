@@ -52,6 +52,10 @@ if TYPE_CHECKING:
     from smol_dsl.runner.engine import Engine
     from smol_dsl.tasks.base import Task
 
+RANDOM_STREAMS = "keys split as QDax's MAPElites.update splits them"
+"""How a run's key becomes its offspring's, recorded in checkpoints: a checkpoint of another
+way is refused rather than resumed into a run that follows neither."""
+
 Progress = Callable[[list[dict[str, Any]], int], None]
 """progress(the latest metrics row of every run, total generations)."""
 
@@ -113,6 +117,7 @@ def owner(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
     return {
         "config": shared,
         "runs": [{"seed": run.config.seed, "schedule": run.schedule.source} for run in runs],
+        "random_streams": RANDOM_STREAMS,
     }
 
 

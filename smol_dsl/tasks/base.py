@@ -19,6 +19,7 @@ import copy
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import jax
@@ -152,8 +153,13 @@ class Task:
     def _channel_tasks(self) -> dict[tuple[Channel, ...], Task]:
         return {}
 
-    def rollout(self, params: Any, body: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
-        """Fitness and descriptor of one policy in `body`, a (C,) array of factors for `channels`."""
+    def rollout(
+        self, params: Any, body: jax.Array, start: State, *, transitions: bool = False
+    ) -> tuple[jax.Array, ...]:
+        """Fitness and descriptor of one policy in `body`, a (C,) array of factors for
+        `channels`; with `transitions`, also every step's QDax `QDTransition`, as QDax's
+        Brax scoring records them (`dones` and `truncations` as Brax's `EpisodeWrapper` sets
+        them: the last step ends the episode)."""
         if jnp.shape(body) != (len(self.channels),):
             names = ", ".join(channel.name for channel in self.channels)
             raise ValueError(
@@ -163,25 +169,33 @@ class Task:
         sys = self.modulate(self.env.sys, body)
         env = with_sys(self.env, sys)
         start = start_in_body(start, sys, self.env.sys)
+        last = self.episode_length - 1
 
-        def step(carry: tuple[State, jax.Array], _: None) -> tuple[tuple[State, jax.Array], tuple]:
+        def step(carry: tuple[State, jax.Array], index: jax.Array | None) -> tuple[tuple[State, jax.Array], tuple]:
             state, ended = carry
             descriptor = self.state_descriptor(state)
             action = self.policy.apply(params, state.obs)
             next_state = env.step(state, action)
-            return (next_state, ended | (next_state.done > 0)), (self.reward(next_state), descriptor, ended)
+            reward = self.reward(next_state)
+            out: tuple = (reward, descriptor, ended)
+            if index is not None:
+                next_descriptor = self.state_descriptor(next_state)
+                out += (_transition(state, action, next_state, reward, descriptor, next_descriptor, index == last),)
+            return (next_state, ended | (next_state.done > 0)), out
 
-        _, (rewards, descriptors, ended) = jax.lax.scan(
-            step, (start, jnp.asarray(False)), None, length=self.episode_length
+        steps = jnp.arange(self.episode_length) if transitions else None
+        _, (rewards, descriptors, ended, *recorded) = jax.lax.scan(
+            step, (start, jnp.asarray(False)), steps, length=self.episode_length
         )
         valid = ~ended  # a step counts until and including the one that ends the episode
         fitness = jnp.sum(jnp.where(valid, rewards, 0.0))
-        return fitness, self.final_descriptor(descriptors, valid)
+        return (fitness, self.final_descriptor(descriptors, valid), *recorded)
 
-    def score(self, params: Any, body: jax.Array, start: State) -> tuple[jax.Array, jax.Array]:
-        """Fitnesses (B,) and descriptors (B, D) of a batch of policies in `body` (not jitted:
-        for use inside other traced programs, such as the runner's per-run step)."""
-        return jax.vmap(self.rollout, in_axes=(0, None, None))(params, body, start)
+    def score(self, params: Any, body: jax.Array, start: State, *, transitions: bool = False) -> tuple[jax.Array, ...]:
+        """Fitnesses (B,) and descriptors (B, D) of a batch of policies in `body` (and, with
+        `transitions`, their (B, episode_length) `QDTransition`s); not jitted: for use inside
+        other traced programs, such as the runner's per-run step."""
+        return jax.vmap(partial(self.rollout, transitions=transitions), in_axes=(0, None, None))(params, body, start)
 
     def scoring_fn(self) -> ScoringFn:
         """`score`, jitted once per task: the body and the start are traced, so any body and
@@ -191,6 +205,34 @@ class Task:
     @functools.cached_property
     def _scoring_fn(self) -> ScoringFn:
         return jax.jit(self.score)
+
+
+def _transition(
+    state: State,
+    action: jax.Array,
+    next_state: State,
+    reward: jax.Array,
+    descriptor: jax.Array,
+    next_descriptor: jax.Array,
+    last: jax.Array,
+) -> Any:
+    """One step as QDax's `QDTransition`: the episode is done at its last step, which is a
+    truncation unless the environment ended it there. `next_obs` is always the state the
+    step reached (QDax's env restarts an ended episode within the step, so its `next_obs`
+    at an end is the restart's; TD3 ignores it there: a truncation is not bootstrapped)."""
+    from qdax.core.neuroevolution.buffers.buffer import QDTransition
+
+    done = next_state.done
+    return QDTransition(
+        obs=state.obs,
+        next_obs=next_state.obs,
+        rewards=reward,
+        dones=jnp.where(last, jnp.ones_like(done), done),
+        truncations=jnp.where(last, 1 - done, jnp.zeros_like(done)),
+        actions=action,
+        state_desc=descriptor,
+        next_state_desc=next_descriptor,
+    )
 
 
 def mean_over_valid(per_step: jax.Array, valid: jax.Array) -> jax.Array:

@@ -1,0 +1,139 @@
+"""The paper's phase-boundary step on any QDax repertoire: every elite re-scored in the new
+body, thinned by extinction, inserted into a fresh repertoire.
+
+The step runs in fixed-size chunks over the filled cells only (`reevaluation_chunks`), so
+its cost follows the filled cells and each chunk size compiles once. Per chunk, the key is
+split in three (the next chunk's key, the scoring key, the extinction draws' key:
+`pick_chunk`), the survivors' results go into the fresh repertoire (`insert_chunk`) and
+collisions keep the best; the runner's engine runs the same two functions over its runs,
+so `reevaluate` with the run's batch size and key is the runner's re-evaluation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from smol_dsl.qdax.scoring import drop_non_finite
+
+if TYPE_CHECKING:
+    from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
+
+    from smol_dsl.qdax.scoring import Score
+
+DEFAULT_CHUNK = 256  # elites scored per program: small enough for any task's memory, big enough to keep cores busy
+
+
+def filled_cells(repertoire: MapElitesRepertoire) -> np.ndarray:
+    """The indices of a repertoire's filled cells (read on the host: not traceable)."""
+    try:
+        fitnesses = np.asarray(repertoire.fitnesses)
+    except jax.errors.TracerArrayConversionError:
+        raise TypeError(
+            "reevaluate reads which cells of the repertoire are filled, so it runs outside jit: call it between "
+            "jitted updates, at a phase boundary"
+        ) from None
+    return np.flatnonzero((fitnesses > -np.inf).reshape(len(fitnesses), -1).any(axis=1))
+
+
+def reevaluation_chunks(filled: list[np.ndarray], batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Fixed-size chunks over each run's filled cells, up to the fullest run: per chunk,
+    cell indices and which of them are real, both (runs, batch_size). A short chunk is
+    padded by repeating its cells (padding is not kept); a run with no cells left gets an
+    all-invalid row."""
+    for start in range(0, max((len(cells) for cells in filled), default=0), batch_size):
+        index = np.zeros((len(filled), batch_size), dtype=np.int32)
+        valid = np.zeros((len(filled), batch_size), dtype=bool)
+        for run, cells in enumerate(filled):
+            chunk = cells[start : start + batch_size]
+            if len(chunk):
+                index[run] = np.resize(chunk, batch_size)
+                valid[run, : len(chunk)] = True
+        yield index, valid
+
+
+def pick_chunk(genotypes: Any, index: jax.Array, key: jax.Array) -> tuple[Any, jax.Array, jax.Array, jax.Array]:
+    """The genotypes at `index` to re-score; the next chunk's key, the scoring key and the
+    key of this chunk's extinction draws."""
+    key, score_key, death_key = jax.random.split(key, 3)
+    return jax.tree.map(lambda x: x[index], genotypes), key, score_key, death_key
+
+
+def insert_chunk(
+    fresh: MapElitesRepertoire,
+    genotypes: Any,
+    fitnesses: jax.Array,
+    descriptors: jax.Array,
+    valid: jax.Array,
+    extinction: jax.Array,
+    death_key: jax.Array,
+) -> tuple[MapElitesRepertoire, jax.Array]:
+    """Re-scored elites that are `valid` (not padding), survive extinction (each dies with
+    probability `extinction`) and scored finite, into `fresh`; returns it and how many valid
+    ones were non-finite."""
+    survives = jax.random.uniform(death_key, jnp.shape(valid)) >= extinction
+    fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
+    fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
+    return fresh.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
+
+
+def emptied(repertoire: MapElitesRepertoire) -> MapElitesRepertoire:
+    """The repertoire with no elites, on a copy of its centroids (what `init_default` makes;
+    sharing no buffer with `repertoire`, so that it can be donated)."""
+    return repertoire.replace(
+        centroids=jnp.array(repertoire.centroids, copy=True),
+        genotypes=jax.tree.map(jnp.zeros_like, repertoire.genotypes),
+        fitnesses=jnp.full_like(repertoire.fitnesses, -jnp.inf),
+        descriptors=jnp.zeros_like(repertoire.descriptors),
+        extra_scores=jax.tree.map(jnp.zeros_like, repertoire.extra_scores),
+    )
+
+
+@partial(jax.jit, static_argnames=("score",), donate_argnames=("fresh",))
+def _chunk(
+    score: Score,
+    source: Any,
+    fresh: MapElitesRepertoire,
+    index: jax.Array,
+    valid: jax.Array,
+    body: jax.Array,
+    extinction: jax.Array,
+    key: jax.Array,
+) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
+    genotypes, key, score_key, death_key = pick_chunk(source, index, key)
+    fitnesses, descriptors, _ = score(genotypes, score_key, body)
+    fresh, non_finite = insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
+    return fresh, key, non_finite
+
+
+def reevaluate(
+    repertoire: MapElitesRepertoire,
+    score: Score,
+    body: jax.Array,
+    key: jax.Array,
+    extinction: float = 0.0,
+    *,
+    batch_size: int = DEFAULT_CHUNK,
+) -> MapElitesRepertoire:
+    """Every filled cell of `repertoire` re-scored by `score` (from `scoring_function`) in
+    `body`, each elite dying with probability `extinction`, the survivors inserted into a
+    fresh repertoire on the same centroids (collisions keep the best; non-finite results are
+    dropped). Runs outside jit, `batch_size` elites per compiled program; with the run's
+    batch size and the key of `key, sub = split(key)` at the boundary it is `smol-dsl run`'s
+    re-evaluation. A repertoire left empty must be reseeded before the next `emit`."""
+    if not 0.0 <= float(extinction) <= 1.0:
+        raise ValueError(f"extinction {extinction!r}: a probability from 0 to 1")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size {batch_size!r}: a whole number of elites per program, at least 1")
+    filled = filled_cells(repertoire)
+    fresh = emptied(repertoire)
+    body = jnp.asarray(body, jnp.float32)
+    rate = jnp.asarray(extinction, jnp.float32)
+    for index, valid in reevaluation_chunks([filled], batch_size):
+        fresh, key, _ = _chunk(score, repertoire.genotypes, fresh, index[0], valid[0], body, rate, key)
+    return fresh
