@@ -15,10 +15,11 @@ Prints one `name: value` line per figure:
 - reeval_10pct_over_100pct: time to re-evaluate an archive 10% full over one 100% full
   (target <= 0.2).
 
-The timed programs are interleaved (A, B, C, A, B, C, ...) and each figure is a ratio of
-medians, so a busy spell of the machine slows every program alike instead of one.
+The timed programs are interleaved (A, B, C, C, B, A, ...) and each figure is a ratio of
+medians, so a busy spell of the machine slows every program alike instead of one; the
+order reverses every round, so that no program always follows the same one.
 
-Usage: python benchmarks/runner_throughput.py [--batch-size 128] [--episode-length 100] [--repeats 7]
+Usage: python benchmarks/runner_throughput.py [--batch-size 128] [--episode-length 100] [--repeats 21]
 """
 
 from __future__ import annotations
@@ -45,15 +46,17 @@ import jax.numpy as jnp  # noqa: E402
 
 def interleaved(programs: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
     """Median seconds per call of each program, after one warm-up call each (compilation
-    excluded), the programs taking turns: A, B, C, A, B, C, ..."""
+    excluded), the programs taking turns: A, B, C, C, B, A, ..."""
     for program in programs.values():
         jax.block_until_ready(program())
     seconds: dict[str, list[float]] = {name: [] for name in programs}
+    order = list(programs.items())
     for _ in range(repeats):
-        for name, program in programs.items():
+        for name, program in order:
             started = time.perf_counter()
             jax.block_until_ready(program())
             seconds[name].append(time.perf_counter() - started)
+        order.reverse()  # A, B, C, then C, B, A: no program always runs right after another
     return {name: statistics.median(values) for name, values in seconds.items()}
 
 
@@ -90,7 +93,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch-size", type=int, default=128)
     parser.add_argument("--episode-length", type=int, default=100)
-    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--repeats", type=int, default=21)
     parser.add_argument("--count-compiles", type=int, metavar="PHASES", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.count_compiles is not None:

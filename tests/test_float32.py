@@ -207,7 +207,7 @@ MIN_ACCEPTED = 1 / 5
 def test_a_schedule_fails_check_or_is_finite_at_every_phase():
     outcomes: Counter[str] = Counter()
 
-    @settings(max_examples=examples(60), **COMMON)
+    @settings(max_examples=examples(30), **COMMON)
     @given(
         text=hostile_schedules() | edge_schedules(),
         phase_counts=st.lists(st.integers(1, 1000), min_size=1, max_size=3),

@@ -34,14 +34,19 @@ def phases_recorded(history, bodies) -> None:
 
 def test_qdax_map_elites_under_smol_is_smol_dsl_run():
     """The same seed and settings: QDax's own `MAPElites.init`/`update` loop with smol-dsl's
-    scoring, re-evaluation and first draws ends with `smol-dsl run`'s archive, bit for bit,
-    and logs its metrics."""
+    scoring, re-evaluation and first draws ends with `smol-dsl run`'s archive: the same elites
+    in the same cells, bit for bit, with the same fitnesses to float32 rounding, and it logs
+    its metrics. (The rollout is compiled inside QDax's fused `update` there and as the
+    runner's own scoring program here; jax 0.12's CPU compiler can round a step's physics
+    differently in the two: 1 ulp of fitness in 1 of 32 cells, measured.)"""
     repertoire, bodies, history = example("qdax_map_elites").main("smol", seed=2, **SIZES)
     config = small_config(seed=2, num_init_cvt_samples=5000)
     result = run_experiment(small_task(), smol_dsl.load("smol"), config)
     np.testing.assert_array_equal(bodies, result.bodies)
     ours = result.repertoire
-    np.testing.assert_array_equal(np.asarray(repertoire.fitnesses), np.asarray(ours.fitnesses))
+    theirs_fitness, our_fitness = np.asarray(repertoire.fitnesses), np.asarray(ours.fitnesses)
+    np.testing.assert_array_equal(theirs_fitness > -np.inf, our_fitness > -np.inf)
+    np.testing.assert_allclose(theirs_fitness, our_fitness, rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(repertoire.descriptors), np.asarray(ours.descriptors))
     for theirs, mine in zip(
         (np.asarray(x) for x in __import__("jax").tree.leaves(repertoire.genotypes)),

@@ -203,6 +203,32 @@ def test_extinction_removes_about_p_of_the_elites(task, human_run):
 
 
 @pytest.mark.slow
+def test_an_empty_archive_is_reseeded_beside_a_filled_one_as_each_alone(task):
+    """Two runs on one device, one archive empty and one filled: the empty one gets fresh
+    policies, the filled one offspring, each bit for bit what a step of that run alone gives
+    (the engine makes fresh policies only when some local archive is empty)."""
+    pair = Engine(task, batch_size=16, iso_sigma=0.005, line_sigma=0.05, devices=jax.devices()[:1], num_runs=2)
+    alone, start, alpha = one_run_engine(task)
+    centroids = cvt_centroids(32, task.descriptor_low, task.descriptor_high, 5000, jax.random.key(0))[None]
+    first, *_ = alone.step(alone.empty_archives(centroids), alpha, start, alone.put(jax.random.key(1)[None]))
+    empty, full = jax.device_get(alone.empty_archives(centroids)), jax.device_get(first)  # steps donate archives
+    keys = jnp.stack([jax.random.key(2), jax.random.key(3)])
+    expected = [
+        alone.step(alone.put(archive), alpha, start, alone.put(keys[r : r + 1]))[0]
+        for r, archive in enumerate((empty, full))
+    ]
+    pairs = lambda a, b: pair.put(jax.tree.map(lambda x, y: np.concatenate([x, y]), a, b))  # noqa: E731
+    starts = jax.device_get(start)
+    stepped, _, _, reseeded = pair.step(
+        pairs(empty, full), pairs(np.asarray(alpha), np.asarray(alpha)), pairs(starts, starts), pair.put(keys)
+    )
+    assert list(reseeded) == [True, False]
+    for r, archive in enumerate(expected):
+        for ours, theirs in zip(jax.tree.leaves(stepped), jax.tree.leaves(archive), strict=True):
+            np.testing.assert_array_equal(np.asarray(ours)[r], np.asarray(theirs)[0])
+
+
+@pytest.mark.slow
 def test_non_finite_results_never_enter_the_archive(task, monkeypatch):
     real_score = task.score
 

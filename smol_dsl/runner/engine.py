@@ -87,7 +87,7 @@ class Engine:
         self.run_step = step = RunStep(map_elites, task.init_policies, self._score, batch_size)
         # a generation is ask, score, tell and a re-evaluation pick, score, insert: the same
         # scoring program for both (the rollout is nearly all of the compilation)
-        self._ask = self._over_runs(step.ask, in_groups=True)
+        self._ask = self._sharded(self._reseeding_ask(step), ())
         self._scores = self._over_runs(step.score, in_groups=True)
         self._tell = self._over_runs(step.tell, donate=(0,))
         self._pick = self._over_runs(step.pick)
@@ -113,6 +113,10 @@ class Engine:
         time one group after another (for making and scoring offspring, whose working memory
         grows with the runs at once). Programs that read or update whole archives are
         vmapped, so that a donated archive is updated in place."""
+        return self._sharded(self._local(run_fn, in_groups), donate)
+
+    def _local(self, run_fn: Any, in_groups: bool) -> Any:
+        """`run_fn` over one device's runs (see `_over_runs`)."""
         runs_per_step = self.runs_per_step if in_groups else None
 
         def local(*args: Any) -> Any:
@@ -121,6 +125,24 @@ class Engine:
                 return jax.vmap(run_fn)(*args)
             return in_run_groups(run_fn, args, runs_per_step)
 
+        return local
+
+    def _reseeding_ask(self, step: RunStep) -> Any:
+        """Every local run's offspring, with fresh policies for the runs whose archive is
+        empty. Mapped over runs, `ask`'s choice between reseeding and offspring is a select
+        that makes both every generation, so the reseeding `ask` runs only when some local
+        run's archive is empty (the first generation, or after an extinction emptied it)."""
+        reseeding, filled = self._local(step.ask, in_groups=True), self._local(step.offspring, in_groups=True)
+
+        def ask(repertoires: MapElitesRepertoire, keys: jax.Array) -> tuple[Any, jax.Array]:
+            runs = repertoires.fitnesses.shape[0]
+            some_empty = jnp.any(jnp.all(repertoires.fitnesses.reshape(runs, -1) == -jnp.inf, axis=1))
+            return jax.lax.cond(some_empty, reseeding, filled, repertoires, keys)
+
+        return ask
+
+    def _sharded(self, local: Any, donate: tuple[int, ...]) -> Any:
+        """A function of one device's runs, jitted over the devices' runs."""
         spec = PartitionSpec(RUNS)
         sharded = jax.shard_map(local, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
         # every result split along the runs axis as the arguments are, so that a program's

@@ -113,6 +113,12 @@ class RunStep:
         )
         return genotypes, empty
 
+    def offspring(self, repertoire: MapElitesRepertoire, key: jax.Array) -> tuple[Any, jax.Array]:
+        """`ask` for an archive known to hold elites: the same offspring, without making the
+        fresh policies a reseed would need (under `vmap`, `ask`'s `cond` becomes a select
+        that computes both branches every generation)."""
+        return self.map_elites.ask(repertoire, None, initial_key(key))[0], jnp.asarray(False)
+
     def tell(
         self, repertoire: MapElitesRepertoire, genotypes: Any, fitnesses: jax.Array, descriptors: jax.Array
     ) -> tuple[MapElitesRepertoire, Metrics, jax.Array]:

@@ -189,6 +189,7 @@ class Training:
                 for run in padded
             ]
         )
+        self._placed_bodies: tuple[int, jax.Array | None] = (-1, None)  # the phase whose bodies are on the devices
         self.schemas = [rundir.metrics_schema(run.schedule.channels) for run in runs]
         # each run's own bodies, the columns of its schedule's channels (its metrics.csv columns and result)
         self._own_bodies = [
@@ -331,8 +332,11 @@ class Training:
         self._record(metrics, ["reseed" if reseeded[r] else "train" for r in range(len(self.runs))], dropped)
 
     def _bodies_of(self, phase: int) -> jax.Array:
-        """Every run's body in `phase`: (runs, channels) float32."""
-        return self.engine.put(jnp.asarray(self.bodies[:, phase], dtype=jnp.float32))
+        """Every run's body in `phase`: (runs, channels) float32, put on the devices once a
+        phase rather than every generation."""
+        if self._placed_bodies[0] != phase:
+            self._placed_bodies = (phase, self.engine.put(jnp.asarray(self.bodies[:, phase], dtype=jnp.float32)))
+        return self._placed_bodies[1]
 
     def _columns(self, run: int, phase: int) -> dict[str, float]:
         """A run's metrics.csv body columns in a phase (its schedule's channels)."""
