@@ -73,6 +73,7 @@ SHARED_WORKERS = {
     "test_checkpoint": "small-runs",
     "test_channel_runs": "small-runs",
     "test_seeds": "small-runs",
+    "test_gaits": "small-runs",
     "test_tasks": "brax-tasks",
     "test_body": "brax-tasks",
 }

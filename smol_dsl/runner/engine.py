@@ -97,6 +97,7 @@ class Engine:
         # made on the devices, each its own runs' share: no host-side or stacked copy
         self._empty = self._over_runs(partial(empty_archive, template))
         self._split = jax.jit(split_in_two, out_shardings=self.sharding)
+        self._replays: Any = None  # compiled on first use (`replay`)
 
     def padded_runs(self, runs: int) -> int:
         """The number of runs rounded up to a multiple of the runs axis."""
@@ -149,18 +150,18 @@ class Engine:
         # results, given to the next one, never make it compile a variant for other shardings
         return jax.jit(sharded, donate_argnums=donate, out_shardings=self.sharding)
 
-    def _score(self, genotypes: Any, body: jax.Array, start: Any) -> tuple[jax.Array, jax.Array]:
+    def _score(self, genotypes: Any, body: jax.Array, start: Any, poses: bool = False) -> tuple[jax.Array, ...]:
         """Score one run's batch in its body; along the population axis each device rolls out
-        its share, and the shares are gathered in order."""
+        its share, and the shares are gathered in order. With `poses`, also every step's
+        positions and whether it counts (`Task.rollout`)."""
         shares = self.population_devices
         if shares == 1:
-            return self.task.score(genotypes, body, start)
+            return self.task.score(genotypes, body, start, poses=poses)
         size = self.batch_size // shares
         first = jax.lax.axis_index(POPULATION) * size
         mine = jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), genotypes)
-        fitnesses, descriptors = self.task.score(mine, body, start)
         gather = partial(jax.lax.all_gather, axis_name=POPULATION, tiled=True)
-        return gather(fitnesses), gather(descriptors)
+        return tuple(gather(result) for result in self.task.score(mine, body, start, poses=poses))
 
     # ------------------------------------------------------------------ batched API
     def empty_archives(self, centroids: jax.Array) -> MapElitesRepertoire:
@@ -206,6 +207,19 @@ class Engine:
             )
             non_finite += np.asarray(dropped)
         return fresh, np.asarray([len(f) for f in filled]), non_finite
+
+    def score(self, genotypes: Any, bodies: jax.Array, starts: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Every run's batch (R, batch_size, ...) scored in its body by the training's own
+        scoring program: the fitnesses and descriptors its archive holds, bit for bit, on
+        the devices it trained on."""
+        return jax.device_get(self._scores(self.put(genotypes), self.put(bodies), self.put(starts)))
+
+    def replay(self, genotypes: Any, bodies: jax.Array, starts: Any) -> tuple[np.ndarray, ...]:
+        """`score`, with every step's positions (R, B, T, nq) and whether it counts (R, B, T):
+        the same rollout on the same layout, for drawing the gaits."""
+        if self._replays is None:
+            self._replays = self._over_runs(partial(self._score, poses=True), in_groups=True)
+        return jax.device_get(self._replays(self.put(genotypes), self.put(bodies), self.put(starts)))
 
     def metrics(self, repertoires: MapElitesRepertoire) -> dict[str, np.ndarray]:
         """QDax's coverage, max fitness and QD score of every run's archive."""

@@ -154,12 +154,14 @@ class Task:
         return {}
 
     def rollout(
-        self, params: Any, body: jax.Array, start: State, *, transitions: bool = False
+        self, params: Any, body: jax.Array, start: State, *, transitions: bool = False, poses: bool = False
     ) -> tuple[jax.Array, ...]:
         """Fitness and descriptor of one policy in `body`, a (C,) array of factors for
         `channels`; with `transitions`, also every step's QDax `QDTransition`, as QDax's
         Brax scoring records them (`dones` and `truncations` as Brax's `EpisodeWrapper` sets
-        them: the last step ends the episode)."""
+        them: the last step ends the episode); with `poses`, also the generalized positions
+        `q` reached by every step (T, nq) and whether the step counts (T,): what a renderer
+        draws (`smol_dsl.results.gaits`)."""
         if jnp.shape(body) != (len(self.channels),):
             names = ", ".join(channel.name for channel in self.channels)
             raise ValueError(
@@ -181,6 +183,8 @@ class Task:
             if index is not None:
                 next_descriptor = self.state_descriptor(next_state)
                 out += (_transition(state, action, next_state, reward, descriptor, next_descriptor, index == last),)
+            if poses:
+                out += (next_state.pipeline_state.q,)
             return (next_state, ended | (next_state.done > 0)), out
 
         steps = jnp.arange(self.episode_length) if transitions else None
@@ -189,13 +193,17 @@ class Task:
         )
         valid = ~ended  # a step counts until and including the one that ends the episode
         fitness = jnp.sum(jnp.where(valid, rewards, 0.0))
-        return (fitness, self.final_descriptor(descriptors, valid), *recorded)
+        return (fitness, self.final_descriptor(descriptors, valid), *recorded, *((valid,) if poses else ()))
 
-    def score(self, params: Any, body: jax.Array, start: State, *, transitions: bool = False) -> tuple[jax.Array, ...]:
+    def score(
+        self, params: Any, body: jax.Array, start: State, *, transitions: bool = False, poses: bool = False
+    ) -> tuple[jax.Array, ...]:
         """Fitnesses (B,) and descriptors (B, D) of a batch of policies in `body` (and, with
-        `transitions`, their (B, episode_length) `QDTransition`s); not jitted: for use inside
-        other traced programs, such as the runner's per-run step."""
-        return jax.vmap(partial(self.rollout, transitions=transitions), in_axes=(0, None, None))(params, body, start)
+        `transitions`, their (B, episode_length) `QDTransition`s; with `poses`, every step's
+        positions and whether it counts, as `rollout`); not jitted: for use inside other
+        traced programs, such as the runner's per-run step."""
+        rollout = partial(self.rollout, transitions=transitions, poses=poses)
+        return jax.vmap(rollout, in_axes=(0, None, None))(params, body, start)
 
     def scoring_fn(self) -> ScoringFn:
         """`score`, jitted once per task: the body and the start are traced, so any body and

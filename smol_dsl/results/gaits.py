@@ -1,0 +1,428 @@
+"""Gaits: an archive's elites rolled out in a body and drawn by MuJoCo's renderer.
+
+`render_gaits(run_dir, cells, bodies)` replays elites of a finished run with the runner's own
+rollout (`Task.rollout`, the run's episode start, a body of its schedule) and draws the poses
+with `mujoco.Renderer` through the model's tracking camera; `write_gaits` writes them as a
+GIF (Pillow), an MP4 (imageio's bundled ffmpeg, the `video` extra) or one self-contained web
+page (the GIF embedded, no script or style from the network). Several elites, or one elite in
+several bodies, play side by side, each tile labelled with its cell, body and fitness.
+
+Frames are the environment's steps, subsampled so that every frame lasts at least 20 ms and a
+whole number of 10 ms (GIF delays are centiseconds; browsers slow down shorter ones): the
+gaits play in real time. Without a display the GL backend is chosen before MuJoCo loads one:
+`MUJOCO_GL` if set, else EGL, then OSMesa, each tried in a subprocess (`gl_backend`).
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import io
+import math
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from smol_dsl.errors import UserInputError
+
+if TYPE_CHECKING:
+    from smol_dsl.rundir.archive import Archive
+    from smol_dsl.rundir.record import RunRecord
+
+GL_BACKENDS = ("egl", "osmesa")
+GL_PACKAGES = {"egl": "libegl1 libgl1-mesa-dri", "osmesa": "libosmesa6"}
+MIN_FRAME_MS = 20.0
+FRAME_UNIT_MS = 10.0  # GIF delays are whole centiseconds
+VIDEO_FORMATS = (".gif", ".mp4", ".html")
+_PROBE = (
+    "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"1\"/></worldbody></mujoco>')\n"
+    "r = mujoco.Renderer(m, 8, 8); d = mujoco.MjData(m); mujoco.mj_forward(m, d)\n"
+    "r.update_scene(d); r.render(); r.close()"
+)
+
+
+class RenderError(UserInputError):
+    """A gait that cannot be rendered: a bad cell or body, a run without an archive, no GL."""
+
+
+@dataclass(frozen=True)
+class Gait:
+    """One elite rolled out in one body: what the tile shows and the figures printed beside it."""
+
+    cell: int
+    body_label: str  # "final", "phase 3", or "given"
+    body: dict[str, float]  # the factor of each of the schedule's channels
+    fitness: float  # the replay's, over the run's episode, in this body
+    archive_fitness: float  # the archive's (scored in the final body)
+    descriptor: np.ndarray
+    archive_descriptor: np.ndarray
+    frames: list[np.ndarray]  # (height, width, 3) uint8 each
+    frame_ms: float
+    frames_scored: bool = True  # the frames' rollout reached the scored fitness, bit for bit
+
+    @property
+    def label(self) -> str:
+        factors = ", ".join(f"{name} {value:.3g}" for name, value in self.body.items())
+        return f"cell {self.cell} · {self.body_label} body ({factors}) · fitness {self.fitness:.2f}"
+
+
+def gl_backend() -> str:
+    """The GL backend MuJoCo renders with, set in `MUJOCO_GL` before MuJoCo is imported:
+    the user's choice, else the first of EGL and OSMesa that renders in a subprocess."""
+    chosen = os.environ.get("MUJOCO_GL", "").strip().lower()
+    if chosen:
+        return chosen
+    failures = []
+    for backend in GL_BACKENDS:
+        probe = subprocess.run(
+            [sys.executable, "-c", _PROBE],
+            env={**os.environ, "MUJOCO_GL": backend, "PYOPENGL_PLATFORM": backend},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        if probe.returncode == 0:
+            if "mujoco" in sys.modules and backend != "glfw":
+                _switch_loaded_mujoco(backend)
+            os.environ["MUJOCO_GL"] = backend
+            return backend
+        last = (probe.stderr.strip().splitlines() or ["failed"])[-1]
+        failures.append(f"{backend}: {last}")
+    packages = " ".join(GL_PACKAGES.values())
+    raise RenderError(
+        f"no OpenGL backend for MuJoCo's renderer on this machine ({'; '.join(failures)}); install one, "
+        f"e.g. on Debian or Ubuntu `apt-get install {packages}` (software rendering, no display or GPU "
+        "needed), or set MUJOCO_GL to a backend that works here"
+    )
+
+
+def _switch_loaded_mujoco(backend: str) -> None:
+    """Point an already imported MuJoCo at `backend` (it read `MUJOCO_GL` when imported)."""
+    from mujoco.rendering.classic import gl_context
+
+    os.environ["PYOPENGL_PLATFORM"] = backend
+    if backend == "egl":
+        from mujoco.egl import GLContext
+    else:
+        from mujoco.osmesa import GLContext
+    gl_context.GLContext = GLContext
+
+
+def frame_stride(dt: float) -> int:
+    """Environment steps per frame: the fewest that last at least MIN_FRAME_MS, preferring a
+    whole number of FRAME_UNIT_MS (so GIF delays are exact) within four times that."""
+    step_ms = dt * 1000.0
+    first = max(1, math.ceil(MIN_FRAME_MS / step_ms - 1e-9))
+    for stride in range(first, 4 * first + 1):
+        if abs(stride * step_ms / FRAME_UNIT_MS - round(stride * step_ms / FRAME_UNIT_MS)) < 1e-6:
+            return stride
+    return first
+
+
+# ---------------------------------------------------------------------------------- choosing
+def nearest_cell(archive: Archive, descriptor: Sequence[float]) -> int:
+    """The filled cell whose elite's descriptor is nearest `descriptor`."""
+    point = np.asarray(descriptor, dtype=np.float64)
+    if point.shape != archive.descriptors.shape[1:]:
+        raise RenderError(
+            f"--at {','.join(str(x) for x in descriptor)}: this archive's descriptors have "
+            f"{archive.descriptors.shape[1]} value(s), comma-separated"
+        )
+    filled = np.flatnonzero(archive.filled)
+    distances = np.linalg.norm(archive.descriptors[filled] - point, axis=1)
+    return int(filled[np.argmin(distances)])
+
+
+def spread_cells(archive: Archive, count: int) -> list[int]:
+    """`count` filled cells spread over the archive: the best, then each next the filled cell
+    farthest (in descriptor space) from those chosen."""
+    filled = np.flatnonzero(archive.filled)
+    chosen = [archive.best_cell]
+    while len(chosen) < min(count, len(filled)):
+        gaps = np.min(
+            np.linalg.norm(archive.descriptors[filled][:, None] - archive.descriptors[chosen][None], axis=2), axis=1
+        )
+        chosen.append(int(filled[np.argmax(gaps)]))
+    return chosen
+
+
+def check_cell(archive: Archive, cell: int, directory: Path) -> int:
+    cells = len(archive.fitnesses)
+    if not 0 <= cell < cells:
+        raise RenderError(f"--cell {cell}: {directory}'s archive has cells 0 to {cells - 1}")
+    if not archive.filled[cell]:
+        best = archive.best_cell
+        raise RenderError(f"--cell {cell}: that cell of {directory}'s archive is empty; the best elite is in {best}")
+    return cell
+
+
+def phase_bodies(run: RunRecord) -> tuple[tuple[str, ...], np.ndarray]:
+    """The run's schedule channels and the body of every phase (phases, channels), as it
+    trained: the schedule's certified values under the run's seed."""
+    from smol_dsl.language.schedule import parse
+    from smol_dsl.seeds import schedule_key
+
+    schedule = parse(run.schedule_source, path=str(run.directory / "schedule.sched"))
+    values = schedule.checked_phase_values(run.config.num_phases, schedule_key(run.seed), schedule.channels)
+    return tuple(channel.name for channel in schedule.channels), np.asarray(values, dtype=np.float32)
+
+
+def resolve_body(spec: str, run: RunRecord) -> tuple[str, dict[str, float]]:
+    """`final`, `phase:K`, or factors for the schedule's channels in order (comma-separated):
+    the label and the factor of every channel."""
+    names, bodies = phase_bodies(run)
+    text = spec.strip()
+    if text == "final":
+        return "final", dict(zip(names, bodies[-1].tolist(), strict=True))
+    if text.startswith("phase:"):
+        try:
+            phase = int(text.removeprefix("phase:"))
+        except ValueError:
+            phase = -1
+        if not 0 <= phase < len(bodies):
+            raise RenderError(f"--body {spec}: the run has phases 0 to {len(bodies) - 1}, e.g. --body phase:0")
+        return f"phase {phase}", dict(zip(names, bodies[phase].tolist(), strict=True))
+    try:
+        factors = [float(part) for part in text.split(",")]
+    except ValueError:
+        factors = []
+    if len(factors) != len(names) or not all(math.isfinite(f) and f > 0 for f in factors):
+        raise RenderError(
+            f"--body {spec}: give `final`, `phase:K`, or {len(names)} factor(s) above 0, comma-separated, for "
+            f"the schedule's channel(s) {', '.join(names)} (e.g. --body {','.join(['1'] * len(names))})"
+        )
+    return "given", dict(zip(names, factors, strict=True))
+
+
+# ---------------------------------------------------------------------------------- rendering
+def render_gaits(
+    run: RunRecord,
+    archive: Archive,
+    cells: Sequence[int],
+    bodies: Sequence[tuple[str, dict[str, float]]],
+    *,
+    steps: int | None = None,
+    size: tuple[int, int] = (320, 240),
+) -> list[Gait]:
+    """Every cell in every body (cells × bodies), drawn `size` (width, height) pixels.
+
+    The fitness and descriptor are the training's own scoring program's (the run's engine:
+    the same batch size, devices and episode start), so in the body the archive was scored in
+    they are the archive's, bit for bit, on the device layout the run trained on. The frames
+    come from the same rollout on the same layout, recording positions; `steps` (default: the
+    run's episode length) renders a longer or shorter episode than the one scored."""
+    gl_backend()
+    import jax
+
+    from smol_dsl.language.channels import Channel
+    from smol_dsl.runner.engine import shared_engine, shared_task, stack_runs
+    from smol_dsl.runner.layout import default_runs_per_step
+
+    config = run.config
+    channels = tuple(Channel.parse(name) for name in bodies[0][1])
+    devices = tuple(jax.local_devices())
+
+    def engine_of(episode_length: int) -> Any:
+        task = shared_task(config.task, episode_length, tuple(config.hidden_layer_sizes))
+        shaped = dataclasses.replace(config, episode_length=episode_length)
+        return shared_engine(task, shaped, devices, default_runs_per_step(list(devices)), 1, channels)
+
+    scoring = engine_of(config.episode_length)
+    drawing = scoring if not steps or steps == config.episode_length else engine_of(steps)
+    start = stack_runs([scoring.task.episode_start(config.seed)])
+    start_pose = np.asarray(scoring.task.episode_start(config.seed).pipeline_state.q)
+    batch = config.batch_size
+    results = {}
+    for label, body in bodies:
+        factors = np.asarray([list(body.values())], dtype=np.float32)
+        for first in range(0, len(cells), batch):
+            chunk = list(cells[first : first + batch])
+            padded = chunk + [chunk[0]] * (batch - len(chunk))
+            genotypes = jax.tree.map(lambda x, index=padded: np.asarray(x)[index][None], archive.genotypes)
+            fitnesses, descriptors = scoring.score(genotypes, factors, start)
+            replayed, _, q, valid = drawing.replay(genotypes, factors, start)
+            for k, cell in enumerate(chunk):
+                same = drawing is not scoring or bool(replayed[0, k] == fitnesses[0, k])
+                results[cell, label] = (fitnesses[0, k], descriptors[0, k], q[0, k][valid[0, k]], same)
+    stride = frame_stride(float(drawing.task.env.dt))
+    gaits = []
+    with _Renderer(drawing.task, size) as draw:
+        for cell in cells:
+            for label, body in bodies:
+                fitness, descriptor, poses, same = results[cell, label]
+                shown = np.concatenate([start_pose[None], poses])  # until the episode ends
+                gaits.append(
+                    Gait(
+                        cell=int(cell),
+                        body_label=label,
+                        body=body,
+                        fitness=float(fitness),
+                        archive_fitness=float(archive.fitnesses[cell]),
+                        descriptor=np.asarray(descriptor),
+                        archive_descriptor=np.asarray(archive.descriptors[cell]),
+                        frames=[draw(pose) for pose in shown[::stride]],
+                        frame_ms=stride * float(drawing.task.env.dt) * 1000.0,
+                        frames_scored=same,
+                    )
+                )
+    return gaits
+
+
+class _Renderer:
+    """MuJoCo's renderer of the task's model, through its tracking camera where it has one;
+    called with a pose `q`, returns the image; closed on exit."""
+
+    def __init__(self, task: Any, size: tuple[int, int]) -> None:
+        import mujoco
+
+        self._mujoco = mujoco
+        self.model = task.env.sys.mj_model
+        names = [self.model.camera(i).name for i in range(self.model.ncam)]
+        self.camera = "track" if "track" in names else -1
+        width, height = size
+        self.renderer = mujoco.Renderer(self.model, height=height, width=width)
+        self.data = mujoco.MjData(self.model)
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        self.data.qpos[:] = q
+        self._mujoco.mj_forward(self.model, self.data)
+        self.renderer.update_scene(self.data, camera=self.camera)
+        return np.array(self.renderer.render())
+
+    def __exit__(self, *_: object) -> None:
+        self.renderer.close()
+
+
+# ---------------------------------------------------------------------------------- writing
+def tiled_frames(gaits: Sequence[Gait]) -> list[np.ndarray]:
+    """The gaits side by side, each under its label; a gait whose episode ended early holds
+    its last frame."""
+    from PIL import Image, ImageDraw
+
+    length = max(len(g.frames) for g in gaits)
+    height, width = gaits[0].frames[0].shape[:2]
+    banner = 16
+    labels = []
+    for gait in gaits:
+        strip = Image.new("RGB", (width, banner), (255, 255, 255))
+        ImageDraw.Draw(strip).text((3, 2), _fit(gait.label, width), fill=(0, 0, 0))
+        labels.append(np.asarray(strip))
+    frames = []
+    for index in range(length):
+        tiles = [np.concatenate([label, g.frames[min(index, len(g.frames) - 1)]]) for g, label in zip(gaits, labels)]
+        frames.append(np.concatenate(tiles, axis=1))
+    del height
+    return frames
+
+
+def _fit(text: str, width: int) -> str:
+    most = max(8, width // 6)  # the default bitmap font is ~6 px a character
+    return text if len(text) <= most else text[: most - 1] + "…"
+
+
+def gif_bytes(gaits: Sequence[Gait]) -> bytes:
+    from PIL import Image
+
+    frames = [Image.fromarray(frame) for frame in tiled_frames(gaits)]
+    out = io.BytesIO()
+    frames[0].save(
+        out, format="GIF", save_all=True, append_images=frames[1:], duration=gaits[0].frame_ms, loop=0, optimize=False
+    )
+    return out.getvalue()
+
+
+def mp4_bytes(gaits: Sequence[Gait]) -> bytes:
+    try:
+        import imageio.v2 as imageio
+    except ImportError:
+        raise RenderError(
+            "writing .mp4 needs imageio and its ffmpeg: pip install 'smol-dsl[video]' (or write .gif or .html)"
+        ) from None
+    import tempfile
+
+    frames = tiled_frames(gaits)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "gait.mp4"
+        writer = imageio.get_writer(
+            path, fps=1000.0 / gaits[0].frame_ms, codec="libx264", macro_block_size=2, pixelformat="yuv420p"
+        )
+        try:
+            for frame in frames:
+                writer.append_data(_even(frame))
+        finally:
+            writer.close()
+        return path.read_bytes()
+
+
+def _even(frame: np.ndarray) -> np.ndarray:
+    """Cropped to even dimensions (H.264 in yuv420p needs them)."""
+    return frame[: frame.shape[0] // 2 * 2, : frame.shape[1] // 2 * 2]
+
+
+def html_page(gaits: Sequence[Gait], title: str) -> bytes:
+    """One web page that needs nothing but itself: the gaits as an embedded GIF and a table."""
+    gif = base64.b64encode(gif_bytes(gaits)).decode("ascii")
+    rows = "\n".join(
+        "<tr>"
+        + "".join(
+            f"<td>{html.escape(str(value))}</td>"
+            for value in (
+                gait.cell,
+                gait.body_label,
+                ", ".join(f"{k} {v:.4g}" for k, v in gait.body.items()),
+                f"{gait.fitness:.4f}",
+                f"{gait.archive_fitness:.4f}",
+                ", ".join(f"{x:.3f}" for x in gait.descriptor),
+            )
+        )
+        + "</tr>"
+        for gait in gaits
+    )
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title></head>
+<body style="font-family: sans-serif">
+<h1>{html.escape(title)}</h1>
+<p><img src="data:image/gif;base64,{gif}" alt="{html.escape("; ".join(g.label for g in gaits))}"></p>
+<table border="1" cellpadding="4" style="border-collapse: collapse">
+<tr><th>cell</th><th>body</th><th>factors</th><th>fitness (this body)</th><th>archive fitness (final body)</th>
+<th>descriptor</th></tr>
+{rows}
+</table>
+<p>{len(gaits[0].frames)} frames of {gaits[0].frame_ms:.0f} ms (real time).</p>
+</body></html>
+"""
+    return page.encode("utf-8")
+
+
+def check_output(out: str | Path) -> Path:
+    """-o's file: its suffix names a format and its folder exists."""
+    path = Path(out)
+    if path.suffix.lower() not in VIDEO_FORMATS:
+        raise RenderError(f"cannot write {path}: the format is chosen by the suffix, one of {', '.join(VIDEO_FORMATS)}")
+    if not path.parent.is_dir():
+        raise RenderError(f"cannot write {path}: no such directory {path.parent}")
+    if path.is_dir():
+        raise RenderError(f"cannot write {path}: it is a directory; give a file name such as {path / 'gait.gif'}")
+    return path
+
+
+def write_gaits(out: str | Path, gaits: Sequence[Gait], title: str = "gaits") -> Path:
+    """The gaits side by side into `out`, the format by its suffix (.gif, .mp4, .html),
+    written whole or not at all."""
+    path = check_output(out)
+    suffix = path.suffix.lower()
+    data = gif_bytes(gaits) if suffix == ".gif" else mp4_bytes(gaits) if suffix == ".mp4" else html_page(gaits, title)
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_bytes(data)
+    partial.replace(path)
+    return path
