@@ -74,6 +74,7 @@ SHARED_WORKERS = {
     "test_channel_runs": "small-runs",
     "test_seeds": "small-runs",
     "test_gaits": "small-runs",
+    "test_report_page": "small-runs",
     "test_tasks": "brax-tasks",
     "test_body": "brax-tasks",
 }

@@ -142,6 +142,7 @@ def test_report_writes_table_scores_and_figures(synthetic, tmp_path):
     names = sorted(path.name for path in report.files)
     assert names == sorted(
         [
+            "index.html",
             "table.md",
             "pvalues.tex",
             "scores.csv",
@@ -168,7 +169,7 @@ def test_ablations_get_their_own_figure(tmp_path, library):
 
 
 def test_cli_report(synthetic, tmp_path, capsys):
-    assert main(["report", str(synthetic), "-o", str(tmp_path / "r")]) == 0
+    assert main(["report", str(synthetic), "-o", str(tmp_path / "r"), "--no-gaits"]) == 0
     out = capsys.readouterr().out
     assert "walker2d, final max_fitness (16 runs)" in out
     assert "| Vanilla MAP-Elites | 4 | 256.0 |" in out
@@ -431,7 +432,7 @@ def test_an_earlier_report_is_kept_unless_forced(pristine, tmp_path, capsys, lib
     with_ablation = Path(shutil.copytree(pristine, tmp_path / "runs"))
     for seed in SEEDS:
         write_run(with_ablation / f"random-{seed}", library, "random", seed, {"max_fitness": 1.0})
-    assert main(["report", str(with_ablation), "-o", str(out)]) == 0
+    assert main(["report", str(with_ablation), "-o", str(out), "--no-gaits"]) == 0
     capsys.readouterr()
     before = snapshot(out)
     assert "ablation-results.png" in before
@@ -441,7 +442,7 @@ def test_an_earlier_report_is_kept_unless_forced(pristine, tmp_path, capsys, lib
     with pytest.raises(ReportError, match="already holds a report"):
         write_report([pristine], out)
 
-    assert main(["report", str(pristine), "-o", str(out), "--force"]) == 0
+    assert main(["report", str(pristine), "-o", str(out), "--force", "--no-gaits"]) == 0
     after = snapshot(out)
     assert after["table.md"] != before["table.md"]
     assert "ablation-results.png" not in after  # the earlier report's figure that this one does not draw
@@ -460,9 +461,10 @@ def test_output_that_is_a_file_is_refused(pristine, tmp_path, capsys):
 
 def test_output_in_a_new_directory_is_made(pristine, tmp_path, capsys):
     out = tmp_path / "not" / "yet" / "there"
-    assert main(["report", str(pristine), "-o", str(out)]) == 0
+    assert main(["report", str(pristine), "-o", str(out), "--no-gaits"]) == 0
     assert sorted(p.name for p in out.iterdir()) == sorted(
         [
+            "index.html",
             "table.md",
             "pvalues.tex",
             "scores.csv",
@@ -484,7 +486,7 @@ def test_a_report_file_name_taken_by_a_directory_is_refused(pristine, tmp_path, 
 
 def test_a_full_disk_leaves_the_earlier_report_whole(pristine, tmp_path, capsys, monkeypatch):
     out = tmp_path / "out"
-    assert main(["report", str(pristine), "-o", str(out)]) == 0
+    assert main(["report", str(pristine), "-o", str(out), "--no-gaits"]) == 0
     capsys.readouterr()
     before = snapshot(out)
     written = []
@@ -525,7 +527,7 @@ def test_report_of_many_schedules_without_warnings(tmp_path, capsys):
         write_run(tmp_path / "runs" / name, schedules, name, 0, {"max_fitness": float(len(name))})
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out")]) == 0
+        assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out"), "--no-gaits"]) == 0
     err = capsys.readouterr().err
     assert all(line.startswith("note: ") for line in err.splitlines()), err
     assert set(REPORT_FILES) - {"ablation-results.png", "ablation-results.pdf"} == {
@@ -542,7 +544,7 @@ def test_names_with_table_and_latex_characters(tmp_path, capsys):
     for key in schedules:
         for seed in (0, 1):
             write_run(tmp_path / "runs" / f"{key}-{seed}", schedules, key, seed, {"max_fitness": float(seed)})
-    assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out")]) == 0
+    assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out"), "--no-gaits"]) == 0
     markdown = (tmp_path / "out" / "table.md").read_text().splitlines()
     rows = [line for line in markdown if line.startswith("| ") and "---" not in line]
     assert all(line.count(" | ") == rows[0].count(" | ") for line in rows)  # one cell per column
@@ -561,13 +563,13 @@ def test_the_report_module_imports_no_jax():
     assert loaded_modules("import smol_dsl.results.report, smol_dsl.rundir, smol_dsl.results.figures", HEAVY) == []
 
 
-def test_cli_report_imports_no_jax(tmp_path, library):
+def test_cli_report_without_gaits_imports_no_jax(tmp_path, library):
     for schedule in ("smol", "vanilla"):
         for seed in (0, 1):
             write_run(tmp_path / "runs" / f"{schedule}-{seed}", library, schedule, seed, {"max_fitness": seed})
     code = (
         "from smol_dsl.cli import main\n"
-        f"assert main(['report', {str(tmp_path / 'runs')!r}, '-o', {str(tmp_path / 'out')!r}]) == 0"
+        f"assert main(['report', {str(tmp_path / 'runs')!r}, '-o', {str(tmp_path / 'out')!r}, '--no-gaits']) == 0"
     )
     assert loaded_modules(code, HEAVY) == []
     assert (tmp_path / "out" / "table.md").is_file()

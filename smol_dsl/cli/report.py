@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from smol_dsl.cli.common import EXIT_OK, UsageError
+from smol_dsl.cli.common import EXIT_OK, UsageError, positive_int
 
 if TYPE_CHECKING:
     import argparse
@@ -19,7 +19,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         description="Collect the finished runs in the given directories (sweep or run directories, searched "
         "recursively), and write the paper's table - median final score per schedule and one-sided "
         "Mann-Whitney U p-values of 'column better than row' - as Markdown and LaTeX, the final scores, and "
-        "figures of median and interquartile range over seeds (PNG and PDF) with the final archives.",
+        "figures of median and interquartile range over seeds (PNG and PDF) with the final archives, the gaits "
+        "of each schedule's median run, and index.html, a page showing them all that opens offline.",
     )
     report.add_argument("dirs", nargs="+", metavar="DIR", help="sweep or run directories")
     report.add_argument("-o", "--out", metavar="OUT", help="output directory (default DIR/report for one DIR)")
@@ -35,6 +36,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="NAME",
         help=f"final score: max_fitness, coverage or qd_score (default: the task's, {_default_metrics_help()})",
     )
+    gaits = report.add_mutually_exclusive_group()
+    gaits.add_argument(
+        "--gaits",
+        type=positive_int,
+        default=1,
+        metavar="N",
+        help="render N elites of each schedule's median run into the report (default 1: the best; needs OpenGL)",
+    )
+    gaits.add_argument("--no-gaits", action="store_true", help="write the report without rendering any gait")
     report.set_defaults(handle=write_report)
 
 
@@ -57,7 +67,12 @@ def write_report(args: argparse.Namespace) -> int:
     if args.out is not None and not args.out.strip():
         raise UsageError("-o: empty path; give the directory the report goes into (or leave -o out for DIR/report)")
     out = Path(args.out) if args.out is not None else Path(args.dirs[0]) / "report"
-    report = results_report.write_report(args.dirs, out, args.metric, force=args.force)  # ReportError: exit 2
+    gaits = 0 if args.no_gaits else args.gaits
+    if gaits:
+        from smol_dsl.cli.run import use_cpu_cores_as_devices
+
+        use_cpu_cores_as_devices()  # as the runs trained: their scoring programs (see `smol-dsl render`)
+    report = results_report.write_report(args.dirs, out, args.metric, force=args.force, gaits=gaits)
     table = report.table
     print(f"{table.task}, final {table.metric} ({sum(table.runs.values())} runs):\n")
     print(table.markdown())

@@ -15,9 +15,11 @@ written, every file is written atomically, and an earlier report is replaced onl
 from __future__ import annotations
 
 import csv
+import html
 import io
 import math
 import os
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,9 +61,12 @@ REPORT_FILES = (
     "table.md",
     "pvalues.tex",
     "scores.csv",
+    "index.html",
     *(f"{stem}{suffix}" for stem in FIGURE_STEMS for suffix in (".png", ".pdf")),
 )
-"""Every file a report may write: an output directory holding any of them holds a report."""
+"""Every file a report may write but its gaits (`gaits-*.gif`): an output directory holding
+any of them holds a report."""
+GAIT_FILES = "gaits-*.gif"
 MOST_PROBLEMS = 5
 """How many unusable run directories one error lists."""
 
@@ -299,6 +304,23 @@ class PValueTable:
             lines.append("| " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 
+    def html(self) -> str:
+        """The table as an HTML table (the best median and p < SIGNIFICANCE in bold)."""
+        esc = html.escape
+        head = "".join(f"<th>p: {esc(c)} better</th>" for c in self.columns)
+        rows = []
+        for row in self.rows:
+            median = _number(self.medians[row])
+            cells = [esc(row), str(self.runs[row]), f"<b>{median}</b>" if row in self.best else median]
+            for column in self.columns:
+                p = self.pvalues[row][column]
+                cells.append("-" if p is None else (f"<b>{p:.3e}</b>" if p < SIGNIFICANCE else f"{p:.3e}"))
+            rows.append("<tr>" + "".join(f"<td>{cell}</td>" for cell in cells) + "</tr>")
+        return (
+            '<table id="pvalues" border="1" cellpadding="4" style="border-collapse: collapse">'
+            f"<tr><th>schedule</th><th>runs</th><th>median score</th>{head}</tr>" + "".join(rows) + "</table>"
+        )
+
     def latex(self) -> str:
         columns = len(self.columns)
         lines = [
@@ -410,7 +432,9 @@ class Report:
 def earlier_report(out_dir: str | Path) -> list[str]:
     """The report files already in out_dir (none if it does not exist)."""
     out = Path(out_dir)
-    return [name for name in REPORT_FILES if os.path.lexists(out / name)] if out.is_dir() else []
+    if not out.is_dir():
+        return []
+    return [name for name in REPORT_FILES if os.path.lexists(out / name)] + sorted(p.name for p in out.glob(GAIT_FILES))
 
 
 def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str]:
@@ -443,9 +467,11 @@ def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str
     return earlier
 
 
-def render_report(groups: dict[str, list[RunRecord]], table: PValueTable) -> dict[str, bytes]:
-    """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv and
-    the figures (PNG and PDF)."""
+def render_report(groups: dict[str, list[RunRecord]], table: PValueTable, gaits: int = 0) -> dict[str, bytes]:
+    """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv, the
+    figures (PNG and PDF), with `gaits` > 0 a GIF of that many elites of each schedule's
+    median run (`gaits-*.gif`: the best, then spread over the archive), and index.html,
+    the page that shows them all and needs nothing but the files beside it."""
     files: dict[str, bytes] = {}
     label = METRICS_SCHEMA[table.metric].axis_label
     caption = (
@@ -476,7 +502,62 @@ def render_report(groups: dict[str, list[RunRecord]], table: PValueTable) -> dic
             image = io.BytesIO()
             figure.savefig(image, format=suffix, dpi=130)
             files[f"{stem}.{suffix}"] = image.getvalue()
+    shown = gait_files(groups, table.metric, gaits) if gaits > 0 else []
+    files.update({name: data for name, data, _ in shown})
+    files["index.html"] = index_page(table, caption, [stem for stem in figures], shown)
     return files
+
+
+def gait_files(groups: dict[str, list[RunRecord]], metric: str, count: int) -> list[tuple[str, bytes, str]]:
+    """Per schedule, a GIF of `count` elites of its median run in the final body: (file name,
+    GIF, caption). Imports the renderer (JAX, Brax, MuJoCo) only when called."""
+    from smol_dsl.results import gaits as rendering
+    from smol_dsl.rundir import load_archive
+
+    shown = []
+    for index, (name, runs) in enumerate(groups.items()):
+        run = median_run(runs, metric)
+        archive = load_archive(run.directory)
+        cells = rendering.spread_cells(archive, count)
+        drawn = rendering.render_gaits(run, archive, cells, [rendering.resolve_body("final", run)])
+        slug = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "schedule"
+        described = "; ".join(f"cell {g.cell}: fitness {g.fitness:.2f}" for g in drawn)
+        caption = f"{name}, median run (seed {run.seed}) by {metric.replace('_', ' ')}, final body: {described}"
+        shown.append((f"gaits-{index:02d}-{slug}.gif", rendering.gif_bytes(drawn), caption))
+    return shown
+
+
+def index_page(
+    table: PValueTable, caption: str, figures: Sequence[str], gaits: Sequence[tuple[str, bytes, str]]
+) -> bytes:
+    """index.html: the table, the figures and the gaits, every image a file beside it (no
+    script, style sheet or font from anywhere)."""
+    esc = html.escape
+    images = "\n".join(
+        f'<figure><img src="{esc(stem)}.png" alt="{esc(stem)}" style="max-width: 100%">'
+        f"<figcaption>{esc(stem)}</figcaption></figure>"
+        for stem in figures
+    )
+    moving = "\n".join(
+        f'<figure><img src="{esc(name)}" alt="{esc(text)}"><figcaption>{esc(text)}</figcaption></figure>'
+        for name, _, text in gaits
+    )
+    notes = "".join(f"<li>{esc(note)}</li>" for note in table.notes())
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{esc(table.task)}: smol-dsl report</title></head>
+<body style="font-family: sans-serif; max-width: 1400px">
+<h1>{esc(table.task)}: final {esc(table.metric.replace("_", " "))}</h1>
+<p>{esc(caption)}</p>
+{table.html()}
+{f"<ul>{notes}</ul>" if notes else ""}
+<h2>Figures</h2>
+{images}
+{f"<h2>Gaits</h2>{moving}" if gaits else ""}
+<p>Also here: <a href="table.md">table.md</a>, <a href="pvalues.tex">pvalues.tex</a>,
+<a href="scores.csv">scores.csv</a>.</p>
+</body></html>
+"""
+    return page.encode("utf-8")
 
 
 def write_files(out_dir: str | Path, files: dict[str, bytes], remove: Sequence[str] = ()) -> list[Path]:
@@ -518,10 +599,16 @@ def _write_bytes(path: Path, data: bytes) -> None:
 
 
 def write_report(
-    paths: Sequence[str | Path], out_dir: str | Path, metric: str | None = None, *, force: bool = False
+    paths: Sequence[str | Path],
+    out_dir: str | Path,
+    metric: str | None = None,
+    *,
+    force: bool = False,
+    gaits: int = 0,
 ) -> Report:
     """Table (table.md, pvalues.tex), final scores (scores.csv) and figures (PNG and PDF)
-    of the runs below `paths`, written into out_dir.
+    of the runs below `paths`, with index.html showing them and (`gaits` > 0) that many elites
+    of each schedule's median run, written into out_dir.
 
     Every run is read and checked, and every file drawn, before the first file is written;
     each file is written atomically. An out_dir that already holds a report is refused
@@ -530,6 +617,6 @@ def write_report(
     earlier = check_output_directory(out_dir, force)
     groups = load_runs(paths)
     table = pvalue_table(groups, metric)
-    files = render_report(groups, table)
+    files = render_report(groups, table, gaits)
     written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
     return Report(table, written)

@@ -1,0 +1,50 @@
+"""The report's index.html from a real run, opened in headless Chromium: it loads nothing
+but the files beside it, logs no error, and shows the table, the figures and the gaits."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from browser import chromium, visit
+from PIL import Image
+
+from smol_dsl.cli import main
+
+
+@pytest.fixture(scope="module")
+def report_dir(small_run, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report") / "report"
+    assert main(["report", str(small_run), "-o", str(out), "--gaits", "2"]) == 0
+    return out
+
+
+def test_the_report_writes_a_page_and_each_schedule_s_gaits(report_dir):
+    gifs = sorted(report_dir.glob("gaits-*.gif"))
+    assert [gif.name for gif in gifs] == ["gaits-00-smol-human.gif"]
+    image = Image.open(gifs[0])
+    assert image.size[0] == 2 * 320 and image.n_frames >= 2  # two elites side by side
+    page = (report_dir / "index.html").read_text()
+    assert "<script" not in page and "http" not in page.replace('href="table.md"', "")
+
+
+@pytest.mark.skipif(chromium() is None, reason="no Chromium (Debian: apt-get install chromium; .ci/run installs it)")
+def test_the_page_opens_offline_in_chromium_with_everything_decoded(report_dir):
+    seen = visit(report_dir / "index.html")
+    outside = [url for url in seen.requests if not url.startswith(report_dir.resolve().as_uri())]
+    assert not outside, outside  # no request leaves the report's directory
+    assert not seen.errors, seen.errors
+    assert seen.has_table
+    sources = {image["src"] for image in seen.images}
+    assert {"main-results.png", "archives.png", "gaits-00-smol-human.gif"} <= sources
+    assert all(image["complete"] and image["width"] > 0 for image in seen.images), seen.images
+    shot = np.asarray(Image.open(io.BytesIO(seen.screenshot)).convert("L"), dtype=float)
+    assert shot.std() > 10  # not blank
+
+
+def test_no_gaits_renders_nothing(small_run, tmp_path):
+    out = tmp_path / "plain"
+    assert main(["report", str(small_run), "-o", str(out), "--no-gaits"]) == 0
+    assert not list(out.glob("gaits-*.gif"))
+    assert "Gaits" not in (out / "index.html").read_text()
