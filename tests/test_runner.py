@@ -207,8 +207,9 @@ def test_an_empty_archive_is_reseeded_beside_a_filled_one_as_each_alone(task):
     """Two runs on one device, one archive empty and one filled: the empty one gets fresh
     policies, the filled one offspring, each bit for bit what a step of that run alone gives
     (the engine makes fresh policies only when some local archive is empty)."""
-    pair = Engine(task, batch_size=16, iso_sigma=0.005, line_sigma=0.05, devices=jax.devices()[:1], num_runs=2)
-    alone, start, alpha = one_run_engine(task)
+    pair = shared_engine(task, CONFIG, tuple(jax.local_devices()[:1]), 1, 2)  # two runs on one device
+    alone = shared_engine(task, CONFIG, tuple(jax.local_devices()), 1, 1)  # the small runs' own engine
+    start, alpha = run_inputs(alone)
     centroids = cvt_centroids(32, task.descriptor_low, task.descriptor_high, 5000, jax.random.key(0))[None]
     first, *_ = alone.step(alone.empty_archives(centroids), alpha, start, alone.put(jax.random.key(1)[None]))
     empty, full = jax.device_get(alone.empty_archives(centroids)), jax.device_get(first)  # steps donate archives

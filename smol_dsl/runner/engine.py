@@ -155,13 +155,14 @@ class Engine:
         its share, and the shares are gathered in order. With `poses`, also every step's
         positions and whether it counts (`Task.rollout`)."""
         shares = self.population_devices
+        score = partial(self.task.score, poses=True) if poses else self.task.score
         if shares == 1:
-            return self.task.score(genotypes, body, start, poses=poses)
+            return score(genotypes, body, start)
         size = self.batch_size // shares
         first = jax.lax.axis_index(POPULATION) * size
         mine = jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), genotypes)
         gather = partial(jax.lax.all_gather, axis_name=POPULATION, tiled=True)
-        return tuple(gather(result) for result in self.task.score(mine, body, start, poses=poses))
+        return tuple(gather(result) for result in score(mine, body, start))
 
     # ------------------------------------------------------------------ batched API
     def empty_archives(self, centroids: jax.Array) -> MapElitesRepertoire:
