@@ -89,7 +89,7 @@ def gl_backend() -> str:
             timeout=120,
         )
         if probe.returncode == 0:
-            if "mujoco" in sys.modules and backend != "glfw":
+            if "mujoco" in sys.modules:
                 _switch_loaded_mujoco(backend)
             os.environ["MUJOCO_GL"] = backend
             return backend
@@ -310,7 +310,7 @@ def tiled_frames(gaits: Sequence[Gait]) -> list[np.ndarray]:
     from PIL import Image, ImageDraw
 
     length = max(len(g.frames) for g in gaits)
-    height, width = gaits[0].frames[0].shape[:2]
+    width = gaits[0].frames[0].shape[1]
     banner = 16
     labels = []
     for gait in gaits:
@@ -321,7 +321,6 @@ def tiled_frames(gaits: Sequence[Gait]) -> list[np.ndarray]:
     for index in range(length):
         tiles = [np.concatenate([label, g.frames[min(index, len(g.frames) - 1)]]) for g, label in zip(gaits, labels)]
         frames.append(np.concatenate(tiles, axis=1))
-    del height
     return frames
 
 
