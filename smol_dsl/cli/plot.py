@@ -66,18 +66,13 @@ def _figure_path(given: str | None, names: list[str]) -> Path:
     """-o's file, or NAME.png for one schedule and schedules.png for several; refused unless
     its suffix names a format and its folder exists."""
     from smol_dsl.results.figures import FIGURE_FORMATS
+    from smol_dsl.rundir.files import check_output_file
 
     if given is None:
         out = Path(f"{Path(names[0]).stem}.png" if len(names) == 1 else "schedules.png")
     else:
         out = Path(given)
-    if out.suffix.lower() not in FIGURE_FORMATS:
-        raise UsageError(f"cannot write {out}: the format is chosen by the suffix, one of {', '.join(FIGURE_FORMATS)}")
-    if not out.parent.is_dir():
-        raise UsageError(f"cannot write {out}: no such directory {out.parent}")
-    if out.is_dir():
-        raise UsageError(f"cannot write {out}: it is a directory; give -o a file name, such as {out / 'schedules.png'}")
-    return out
+    return check_output_file(out, FIGURE_FORMATS, "schedules.png", UsageError)
 
 
 def _note_phase_counts(schedules: list, phases: int) -> None:

@@ -96,7 +96,7 @@ def render_run(args: argparse.Namespace) -> int:
     if not archive.filled.any():
         raise UsageError(f"{directory}: the final archive holds no elite")
     cells = _cells(args, archive, directory)
-    bodies = [gaits.resolve_body(spec, run) for spec in (args.body or ["final"])]
+    bodies = gaits.resolve_bodies(args.body or ["final"], run)
     started = time.perf_counter()
     rendered = gaits.render_gaits(run, archive, cells, bodies, steps=args.steps, size=args.size)
     title = f"{run.task} under {run.schedule}, seed {run.seed}"
@@ -113,7 +113,7 @@ def render_run(args: argparse.Namespace) -> int:
                 "  (its frames come from the same rollout compiled with positions recorded, which rounds "
                 "differently here: contacts amplify float rounding, so the drawn episode may part from the scored one)"
             )
-    frames = len(gaits.tiled_frames(rendered)) if rendered else 0
+    frames = max(len(gait.frames) for gait in rendered)  # the tiles play together, the longest to its end
     print(f"wrote {out} ({frames} frames of {rendered[0].frame_ms:.0f} ms; rendered in {seconds:.1f} s)")
     return EXIT_OK
 

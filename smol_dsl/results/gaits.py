@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smol_dsl.errors import UserInputError
+from smol_dsl.rundir.files import atomic_write, check_output_file
 
 if TYPE_CHECKING:
     from smol_dsl.rundir.archive import Archive
@@ -62,7 +63,6 @@ class Gait:
     fitness: float  # the replay's, over the run's episode, in this body
     archive_fitness: float  # the archive's (scored in the final body)
     descriptor: np.ndarray
-    archive_descriptor: np.ndarray
     frames: list[np.ndarray]  # (height, width, 3) uint8 each
     frame_ms: float
     frames_scored: bool = True  # the frames' rollout reached the scored fitness, bit for bit
@@ -174,10 +174,15 @@ def phase_bodies(run: RunRecord) -> tuple[tuple[str, ...], np.ndarray]:
     return tuple(channel.name for channel in schedule.channels), np.asarray(values, dtype=np.float32)
 
 
-def resolve_body(spec: str, run: RunRecord) -> tuple[str, dict[str, float]]:
-    """`final`, `phase:K`, or factors for the schedule's channels in order (comma-separated):
-    the label and the factor of every channel."""
+def resolve_bodies(specs: Sequence[str], run: RunRecord) -> list[tuple[str, dict[str, float]]]:
+    """Each of `specs` (`resolve_body`), the run's phase bodies computed once."""
     names, bodies = phase_bodies(run)
+    return [resolve_body(spec, names, bodies) for spec in specs]
+
+
+def resolve_body(spec: str, names: Sequence[str], bodies: np.ndarray) -> tuple[str, dict[str, float]]:
+    """`final`, `phase:K`, or factors for the channels `names` in order (comma-separated),
+    given the body of every phase (`phase_bodies`): the label and the factor of every channel."""
     text = spec.strip()
     if text == "final":
         return "final", dict(zip(names, bodies[-1].tolist(), strict=True))
@@ -236,8 +241,8 @@ def render_gaits(
 
     scoring = engine_of(config.episode_length)
     drawing = scoring if not steps or steps == config.episode_length else engine_of(steps)
-    start = stack_runs([scoring.task.episode_start(config.seed)])
-    start_pose = np.asarray(scoring.task.episode_start(config.seed).pipeline_state.q)
+    episode_start = scoring.task.episode_start(config.seed)
+    start, start_pose = stack_runs([episode_start]), np.asarray(episode_start.pipeline_state.q)
     batch = config.batch_size
     results = {}
     for label, body in bodies:
@@ -266,7 +271,6 @@ def render_gaits(
                         fitness=float(fitness),
                         archive_fitness=float(archive.fitnesses[cell]),
                         descriptor=np.asarray(descriptor),
-                        archive_descriptor=np.asarray(archive.descriptors[cell]),
                         frames=[draw(pose) for pose in shown[::stride]],
                         frame_ms=stride * float(drawing.task.env.dt) * 1000.0,
                         frames_scored=same,
@@ -405,14 +409,7 @@ def html_page(gaits: Sequence[Gait], title: str) -> bytes:
 
 def check_output(out: str | Path) -> Path:
     """-o's file: its suffix names a format and its folder exists."""
-    path = Path(out)
-    if path.suffix.lower() not in VIDEO_FORMATS:
-        raise RenderError(f"cannot write {path}: the format is chosen by the suffix, one of {', '.join(VIDEO_FORMATS)}")
-    if not path.parent.is_dir():
-        raise RenderError(f"cannot write {path}: no such directory {path.parent}")
-    if path.is_dir():
-        raise RenderError(f"cannot write {path}: it is a directory; give a file name such as {path / 'gait.gif'}")
-    return path
+    return check_output_file(out, VIDEO_FORMATS, "gait.gif", RenderError)
 
 
 def write_gaits(out: str | Path, gaits: Sequence[Gait], title: str = "gaits") -> Path:
@@ -421,7 +418,5 @@ def write_gaits(out: str | Path, gaits: Sequence[Gait], title: str = "gaits") ->
     path = check_output(out)
     suffix = path.suffix.lower()
     data = gif_bytes(gaits) if suffix == ".gif" else mp4_bytes(gaits) if suffix == ".mp4" else html_page(gaits, title)
-    partial = path.with_name(f".{path.name}.partial")
-    partial.write_bytes(data)
-    partial.replace(path)
+    atomic_write(path, lambda file: file.write(data))
     return path

@@ -20,7 +20,7 @@ import io
 import math
 import os
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -292,15 +292,21 @@ class PValueTable:
         top = max(self.medians[name] for name in self.rows)
         return {name for name in self.rows if self.medians[name] == top}
 
+    def _scores(self, row: str, bold: Callable[[str], str]) -> list[str]:
+        """A row's median and its p-values as text, the best median and p < SIGNIFICANCE
+        marked by `bold` (each format's own markup)."""
+        median = _number(self.medians[row])
+        cells = [bold(median) if row in self.best else median]
+        for column in self.columns:
+            p = self.pvalues[row][column]
+            cells.append("-" if p is None else (bold(f"{p:.3e}") if p < SIGNIFICANCE else f"{p:.3e}"))
+        return cells
+
     def markdown(self) -> str:
         header = ["schedule", "runs", "median score", *(f"p: {_markdown_escape(c)} better" for c in self.columns)]
         lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
         for row in self.rows:
-            median = _number(self.medians[row])
-            cells = [_markdown_escape(row), str(self.runs[row]), f"**{median}**" if row in self.best else median]
-            for column in self.columns:
-                p = self.pvalues[row][column]
-                cells.append("-" if p is None else (f"**{p:.3e}**" if p < SIGNIFICANCE else f"{p:.3e}"))
+            cells = [_markdown_escape(row), str(self.runs[row]), *self._scores(row, lambda text: f"**{text}**")]
             lines.append("| " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 
@@ -310,11 +316,7 @@ class PValueTable:
         head = "".join(f"<th>p: {esc(c)} better</th>" for c in self.columns)
         rows = []
         for row in self.rows:
-            median = _number(self.medians[row])
-            cells = [esc(row), str(self.runs[row]), f"<b>{median}</b>" if row in self.best else median]
-            for column in self.columns:
-                p = self.pvalues[row][column]
-                cells.append("-" if p is None else (f"<b>{p:.3e}</b>" if p < SIGNIFICANCE else f"{p:.3e}"))
+            cells = [esc(row), str(self.runs[row]), *self._scores(row, lambda text: f"<b>{text}</b>")]
             rows.append("<tr>" + "".join(f"<td>{cell}</td>" for cell in cells) + "</tr>")
         return (
             '<table id="pvalues" border="1" cellpadding="4" style="border-collapse: collapse">'
@@ -331,11 +333,7 @@ class PValueTable:
             "\\midrule",
         ]
         for row in self.rows:
-            median = _number(self.medians[row])
-            cells = [_latex_escape(row), f"\\textbf{{{median}}}" if row in self.best else median]
-            for column in self.columns:
-                p = self.pvalues[row][column]
-                cells.append("-" if p is None else (f"\\textbf{{{p:.3e}}}" if p < SIGNIFICANCE else f"{p:.3e}"))
+            cells = [_latex_escape(row), *self._scores(row, lambda text: f"\\textbf{{{text}}}")]
             lines.append(" & ".join(cells) + " \\\\")
         lines += ["\\bottomrule", "\\end{tabular}"]
         return "\n".join(lines) + "\n"
@@ -519,7 +517,7 @@ def gait_files(groups: dict[str, list[RunRecord]], metric: str, count: int) -> l
         run = median_run(runs, metric)
         archive = load_archive(run.directory)
         cells = rendering.spread_cells(archive, count)
-        drawn = rendering.render_gaits(run, archive, cells, [rendering.resolve_body("final", run)])
+        drawn = rendering.render_gaits(run, archive, cells, rendering.resolve_bodies(["final"], run))
         slug = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "schedule"
         described = "; ".join(f"cell {g.cell}: fitness {g.fitness:.2f}" for g in drawn)
         caption = f"{name}, median run (seed {run.seed}) by {metric.replace('_', ' ')}, final body: {described}"

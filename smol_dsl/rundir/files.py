@@ -3,14 +3,15 @@
 `atomic_write` writes a temporary file beside the target, fsyncs it and renames it over the
 target, so a process killed at any moment leaves the old file or the new one, never a torn
 one; an OSError names the file that could not be written. `read_text` reads a text file of
-a run directory, or raises a RunDirectoryError that says why it cannot be used.
+a run directory, or raises a RunDirectoryError that says why it cannot be used;
+`check_output_file` refuses an output file a command cannot write.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -54,6 +55,22 @@ def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
 def write_text(path: Path, text: str) -> None:
     """Write a UTF-8 text atomically."""
     atomic_write(path, lambda file: file.write(text.encode()))
+
+
+def check_output_file(
+    path: str | os.PathLike[str], formats: Sequence[str], example: str, error: type[Exception]
+) -> Path:
+    """A file a command is to write (its -o): refused with `error` unless its suffix is one of
+    `formats` and its folder exists, and it is not a directory (`example` names a file to
+    suggest inside it)."""
+    out = Path(path)
+    if out.suffix.lower() not in formats:
+        raise error(f"cannot write {out}: the format is chosen by the suffix, one of {', '.join(formats)}")
+    if not out.parent.is_dir():
+        raise error(f"cannot write {out}: no such directory {out.parent}")
+    if out.is_dir():
+        raise error(f"cannot write {out}: it is a directory; give -o a file name, such as {out / example}")
+    return out
 
 
 def read_text(path: Path) -> str:
