@@ -9,13 +9,14 @@ them with the evaluation rate a time budget needs, and `fits` says whether the d
 memory holds them. `largest_fitting` finds the most seeds (or runs per step) that fit.
 
 The runner holds at most two sets of archives at once: while re-evaluating (each archive
-and its fresh copy), while a checkpoint's host copy is made and written (training waits
-for it before the next re-evaluation), and at the end (every run's archive on its own
-beside the stacked ones). Where the devices share the host's memory (CPUs) the peak is
-what this process already holds, plus the compiled programs and the runtime
-(`runtime_bytes`), plus two sets of every device's archives (a device whose share of a
-batch is split holds a copy of the run's archive), plus every device's batches (or one
-run's host copy, at the end, if that is more).
+and its fresh copy), while a checkpoint's host copy is made and written (training goes on
+generating beside it, and waits for it before the next re-evaluation), and at the end
+(every run's archive on its own beside the stacked ones). Where the devices share the
+host's memory (CPUs) the peak is what this process already holds, plus the compiled
+programs and the runtime (`runtime_bytes`), plus two sets of every device's archives (a
+device whose share of a batch is split holds a copy of the run's archive), plus every
+device's batches: the peak comes in a generation made while the checkpoint's host copy is
+pending, and the batches add to the two sets rather than overlap them.
 
 The working memory of a generation is an estimate: XLA decides the real figure when it
 compiles. `POLICY_COPIES` and `STATE_COPIES` were fitted to the compiled generation program
@@ -23,14 +24,18 @@ compiles. `POLICY_COPIES` and `STATE_COPIES` were fitted to the compiled generat
 episodes of 100 and 1000 steps: its temporary memory was 5.5 to 5.8 policies' parameters
 per offspring (two parents, the offspring, the variation's noise) plus a few environment
 states; the estimate came out 0.84 to 0.95 of it, hence slightly on the safe side. The
-tests hold it to within a factor of two of the compiled figure. `runtime_bytes` was fitted
-to the peak resident memory (VmHWM, read from outside) of `smol-dsl sweep` processes of 1,
-4 and 10 ant_omni runs of 256 cells on 2 CPU devices: on jax 0.10 peaks of 1.59, 2.24 and
-3.29 GB against estimates of 1.7, 2.1 and 3.2 GB (0.9 GB of runtime), on jax 0.12 peaks of
-1.28 to 1.38, 2.07 to 2.11 and 3.10 to 3.15 GB against 1.4, 1.9 and 2.9 GB (0.6 GB); the
-tests hold every such estimate within 15%. The peak grows faster from one run to four than
-the model does (about 0.24 GB a run against its 0.13), so a single run is over-estimated
-and larger sweeps slightly under.
+tests hold it to within a factor of two of the compiled figure. A device that advances its
+runs in groups (more local runs than `runs_per_step`) held about twice that working memory
+in the host's memory at its peak (`GROUPED_BATCH_COPIES`): the resident memory of 4 ant_omni runs on 2 CPU
+devices peaked at 2.07 GB in groups of one and 1.79 GB with both runs at once, although
+the compiled ask program's own temporary memory is smaller in groups (149 against 187 MB a
+device); the allocator keeps what the loop's buffers freed.
+
+`runtime_bytes` was fitted to the peak resident memory (VmHWM, read from outside) of
+`smol-dsl sweep` processes of 1, 2, 4 and 10 ant_omni runs of 256 cells on 2 CPU devices
+(the tests hold every such estimate within 15%): on jax 0.12 peaks of 1.28, 1.36, 2.07 and
+3.10 GB against estimates of 1.3, 1.4, 2.0 and 3.2 GB (0.5 GB of runtime); on jax 0.10
+peaks of 1.59, 2.24 and 3.29 GB for 1, 4 and 10 runs against 1.6, 2.3 and 3.5 GB (0.8 GB).
 """
 
 from __future__ import annotations
@@ -54,9 +59,10 @@ if TYPE_CHECKING:
 FLOAT_BYTES = 4
 POLICY_COPIES = 6  # policy parameters alive per offspring in a generation (measured; see the docstring)
 STATE_COPIES = 4  # environment states alive per rollout (measured; see the docstring)
+GROUPED_BATCH_COPIES = 2  # a generation's working memory in host memory, runs in groups (measured)
 # compiled programs, XLA's runtime and allocator, per jax line (measured; see the docstring)
-RUNTIME_BYTES_BY_JAX = {(0, 10): 900_000_000}
-RUNTIME_BYTES_LATER = 600_000_000  # jax 0.11 on (measured on 0.12)
+RUNTIME_BYTES_BY_JAX = {(0, 10): 800_000_000}
+RUNTIME_BYTES_LATER = 500_000_000  # jax 0.11 on (measured on 0.12)
 
 
 def runtime_bytes() -> int:
@@ -200,8 +206,10 @@ class Footprint:
     @property
     def host_peak_bytes(self) -> int:
         """The most host memory the process holds at once, where the devices share it (CPUs):
-        two sets of archives and every run's batches (or, at the end, one run's host copy)."""
+        two sets of archives and every device's batches (or, at the end, one run's host copy)."""
         batches = self.along_runs * self.device_batch_bytes  # a run's batch split over devices: counted once (measured)
+        if self.parallel_runs < self.local_runs:  # in groups: the host allocator keeps what the loop freed (measured)
+            batches *= GROUPED_BATCH_COPIES
         return self.baseline_bytes + 2 * self.held_archives_bytes + max(batches, self.archive_bytes)
 
     @property
