@@ -75,6 +75,7 @@ SHARED_WORKERS = {
     "test_seeds": "small-runs",
     "test_gaits": "small-runs",
     "test_report_page": "small-runs",
+    "test_environment": "small-runs",
     "test_tasks": "brax-tasks",
     "test_body": "brax-tasks",
 }

@@ -150,9 +150,14 @@ def test_report_writes_table_scores_and_figures(synthetic, tmp_path):
             "main-results.pdf",
             "archives.png",
             "archives.pdf",
+            "paper-comparison.md",
+            "paper-comparison.tex",
         ]
     )
     assert all(path.stat().st_size > 0 for path in report.files)
+    comparison = (tmp_path / "out" / "paper-comparison.md").read_text()  # walker2d is one of the paper's
+    assert "The runs lack Random, Extinction 5%, Extinction 10%, Extinction 50%" in comparison
+    assert "| SMOL-Reverse | SMOL | 0.000616 |" in comparison  # the paper's 6.165e-04
     with open(tmp_path / "out" / "scores.csv") as file:
         rows = list(csv.DictReader(file))
     assert len(rows) == 16
@@ -472,6 +477,8 @@ def test_output_in_a_new_directory_is_made(pristine, tmp_path, capsys):
             "main-results.pdf",
             "archives.png",
             "archives.pdf",
+            "paper-comparison.md",
+            "paper-comparison.tex",
         ]
     )
     assert "wrote" in capsys.readouterr().out

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from smol_dsl.cli import check, plot, render, report, run
+from smol_dsl.cli import check, plot, render, report, reproduce, run
 from smol_dsl.cli.common import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, OPTIONS, exit_status
 
 if TYPE_CHECKING:
@@ -40,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_parser(commands)
     plot.add_parser(commands)
     run.add_parsers(commands)
+    reproduce.add_parsers(commands)
     report.add_parser(commands)
     render.add_parser(commands)
     return parser

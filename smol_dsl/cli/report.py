@@ -36,6 +36,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="NAME",
         help=f"final score: max_fitness, coverage or qd_score (default: the task's, {_default_metrics_help()})",
     )
+    report.add_argument(
+        "--allow-mixed-environments",
+        action="store_true",
+        help="put runs produced under different software or hardware (environment.json) in one table",
+    )
     gaits = report.add_mutually_exclusive_group()
     gaits.add_argument(
         "--gaits",
@@ -72,7 +77,14 @@ def write_report(args: argparse.Namespace) -> int:
         from smol_dsl.cli.run import use_cpu_cores_as_devices
 
         use_cpu_cores_as_devices()  # as the runs trained: their scoring programs (see `smol-dsl render`)
-    report = results_report.write_report(args.dirs, out, args.metric, force=args.force, gaits=gaits)
+    report = results_report.write_report(
+        args.dirs,
+        out,
+        args.metric,
+        force=args.force,
+        gaits=gaits,
+        allow_mixed_environments=args.allow_mixed_environments,
+    )
     table = report.table
     print(f"{table.task}, final {table.metric} ({sum(table.runs.values())} runs):\n")
     print(table.markdown())

@@ -59,6 +59,11 @@ def _add_run_parser(commands: argparse._SubParsersAction) -> None:
     )
     run.add_argument("--out", metavar="DIR", help="run directory (default runs/TASK-SCHEDULE-seedS)")
     run.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    run.add_argument(
+        "--allow-environment-change",
+        action="store_true",
+        help="with --resume: go on under other software or hardware than the run started on (recorded)",
+    )
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     common.add_devices_option(run, "split each generation's population across the first D devices")
     # a run is one process's whole share, of one schedule and one seed
@@ -76,7 +81,15 @@ def _add_sweep_parser(commands: argparse._SubParsersAction) -> None:
     )
     sweep.add_argument("task", metavar="TASK", help=common.tasks_help())
     sweep.add_argument("schedules", nargs="+", metavar="SCHEDULE", help="a .sched path or a bundled name")
-    sweep.add_argument("--seeds", type=positive_int, default=5, metavar="N", help="seeds per schedule (default 5)")
+    add_sweep_options(sweep, seeds=5)
+    sweep.set_defaults(handle=Sweep().train, seed=None)  # a sweep's shared settings carry no seed
+
+
+def add_sweep_options(sweep: argparse.ArgumentParser, seeds: int) -> None:
+    """The options of `sweep` (and `reproduce`) after its task and schedules."""
+    sweep.add_argument(
+        "--seeds", type=positive_int, default=seeds, metavar="N", help=f"seeds per schedule (default {seeds})"
+    )
     sweep.add_argument(
         "--first-seed",
         type=whole_number,
@@ -87,6 +100,11 @@ def _add_sweep_parser(commands: argparse._SubParsersAction) -> None:
     common.add_run_options(sweep)
     sweep.add_argument("--out", metavar="DIR", help="sweep directory (default runs/TASK-sweep)")
     sweep.add_argument("--resume", action="store_true", help="continue the sweep in --out from its last checkpoint")
+    sweep.add_argument(
+        "--allow-environment-change",
+        action="store_true",
+        help="with --resume: go on under other software or hardware than the sweep started on (recorded)",
+    )
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
     common.add_devices_option(sweep, "use the first D devices")
     sweep.add_argument(
@@ -109,7 +127,6 @@ def _add_sweep_parser(commands: argparse._SubParsersAction) -> None:
         help="take N and I from the cluster's launcher (Slurm: SLURM_NTASKS, SLURM_PROCID; Open MPI: "
         "OMPI_COMM_WORLD_SIZE, OMPI_COMM_WORLD_RANK)",
     )
-    sweep.set_defaults(handle=Sweep().train, seed=None)  # a sweep's shared settings carry no seed
 
 
 @dataclass
@@ -257,6 +274,7 @@ class Run(TrainingCommand):
             resume=args.resume,
             progress=progress,
             devices=plan.devices,
+            allow_environment_change=args.allow_environment_change,
         )
         return [result]
 
@@ -323,6 +341,7 @@ class Sweep(TrainingCommand):
             devices=plan.devices,
             runs_per_step=footprint.runs_per_step if plan.runs_per_step == -1 else plan.runs_per_step,
             part=plan.part,
+            allow_environment_change=args.allow_environment_change,
         )
 
     def summary(self, plan: Plan, results: list[RunResult]) -> str:

@@ -29,13 +29,16 @@ import numpy as np
 
 from smol_dsl.errors import UserInputError
 from smol_dsl.results.figures import archives_figure, results_figure
+from smol_dsl.results.paper import compare_with_paper
 from smol_dsl.rundir import (
     CONFIG_FILE,
+    ENVIRONMENT_FILE,
     METRICS_FILE,
     METRICS_SCHEMA,
     SCORES,
     RunDirectoryError,
     RunRecord,
+    environment_differences,
     is_run_directory,
     read_run,
 )
@@ -43,6 +46,7 @@ from smol_dsl.tasks import descriptor_bounds, task_spec
 from smol_dsl.tasks.anatomy import resolved_names, same_body
 
 if TYPE_CHECKING:
+    from smol_dsl.results.paper import Comparison
     from smol_dsl.tasks.anatomy import Anatomy
 
 METRICS = SCORES
@@ -62,6 +66,8 @@ REPORT_FILES = (
     "pvalues.tex",
     "scores.csv",
     "index.html",
+    "paper-comparison.md",
+    "paper-comparison.tex",
     *(f"{stem}{suffix}" for stem in FIGURE_STEMS for suffix in (".png", ".pdf")),
 )
 """Every file a report may write but its gaits (`gaits-*.gif`): an output directory holding
@@ -96,13 +102,15 @@ def find_run_directories(paths: Iterable[str | Path]) -> list[Path]:
     return list(found)
 
 
-def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
+def load_runs(paths: Sequence[str | Path], allow_mixed_environments: bool = False) -> dict[str, list[RunRecord]]:
     """Finished runs below `paths`, grouped by schedule name in the paper's order.
 
     Every run directory is read and checked first (`read_run`); then refuses (ReportError)
-    no runs, unfinished runs, runs of several tasks or settings, two schedules with one name,
-    schedules that end on different bodies (a declared `final` factor), and a (schedule, seed)
-    given twice, seeds that JAX takes as equal (S and S + 2**32) included.
+    no runs, unfinished runs, runs of several tasks or settings, runs produced under
+    different environments (environment.json: other package versions, devices or
+    processor; unless `allow_mixed_environments`), two schedules with one name, schedules
+    that end on different bodies (a declared `final` factor), and a (schedule, seed) given
+    twice, seeds that JAX takes as equal (S and S + 2**32) included.
     """
     directories = find_run_directories(paths)
     if not directories:
@@ -114,6 +122,8 @@ def load_runs(paths: Sequence[str | Path]) -> dict[str, list[RunRecord]]:
     _check_one_task(runs)
     _check_finished(runs)
     _check_same_settings(runs)
+    if not allow_mixed_environments:
+        _check_same_environment(runs)
     groups = _group_by_schedule(runs)
     _check_final_bodies(groups)
     ordered = sorted(groups, key=lambda name: (ORDER.index(name) if name in ORDER else len(ORDER), name))
@@ -178,6 +188,21 @@ def _check_same_settings(runs: Sequence[RunRecord]) -> None:
                 f"({len(reference.rows)} rows) log different generations and phases although their runs have the "
                 "same settings; one of them was cut or edited: rerun it, or move it out of the directories you "
                 "report on"
+            )
+
+
+def _check_same_environment(runs: Sequence[RunRecord]) -> None:
+    """Refuse runs produced under different environments (each compiles the physics its
+    own way: the same seed trains to other numbers), naming what differs; runs that
+    recorded none are not compared."""
+    recorded = [run for run in runs if run.environment is not None]
+    for run in recorded[1:]:
+        differences = environment_differences(dict(recorded[0].environment), dict(run.environment))
+        if differences:
+            raise ReportError(
+                f"{recorded[0].directory} and {run.directory} were produced under different environments "
+                f"({ENVIRONMENT_FILE}: {'; '.join(differences)}); their numbers are not comparable in one table. "
+                "Report them apart, or pass --allow-mixed-environments to put them together anyway"
             )
 
 
@@ -425,6 +450,7 @@ class Report:
 
     table: PValueTable
     files: list[Path]
+    comparison: Comparison | None = None  # beside the paper's table, for its tasks and metrics
 
 
 def earlier_report(out_dir: str | Path) -> list[str]:
@@ -466,7 +492,8 @@ def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str
 
 
 def render_report(groups: dict[str, list[RunRecord]], table: PValueTable, gaits: int = 0) -> dict[str, bytes]:
-    """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv, the
+    """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv,
+    paper-comparison.md and .tex (our p-values beside the paper's, for its tasks), the
     figures (PNG and PDF), with `gaits` > 0 a GIF of that many elites of each schedule's
     median run (`gaits-*.gif`: the best, then spread over the archive), and index.html,
     the page that shows them all and needs nothing but the files beside it."""
@@ -485,6 +512,10 @@ def render_report(groups: dict[str, list[RunRecord]], table: PValueTable, gaits:
         for run in runs:
             writer.writerow([name, run.seed, *(run.final[m] for m in METRICS), str(run.directory)])
     files["scores.csv"] = scores.getvalue().encode()
+    comparison = compare_with_paper(table, groups)
+    if comparison is not None:  # a task and metric of the paper's table
+        files["paper-comparison.md"] = comparison.markdown().encode()
+        files["paper-comparison.tex"] = comparison.latex().encode()
     figures = {}
     for stem, names in figure_groups(list(groups)).items():
         what = "main results" if stem == "main-results" else "ablations"
@@ -603,6 +634,7 @@ def write_report(
     *,
     force: bool = False,
     gaits: int = 0,
+    allow_mixed_environments: bool = False,
 ) -> Report:
     """Table (table.md, pvalues.tex), final scores (scores.csv) and figures (PNG and PDF)
     of the runs below `paths`, with index.html showing them and (`gaits` > 0) that many elites
@@ -613,8 +645,8 @@ def write_report(
     (ReportError) unless `force`, which replaces it (files of the earlier report that this one
     does not write, such as an ablation figure, are removed)."""
     earlier = check_output_directory(out_dir, force)
-    groups = load_runs(paths)
+    groups = load_runs(paths, allow_mixed_environments)
     table = pvalue_table(groups, metric)
     files = render_report(groups, table, gaits)
     written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
-    return Report(table, written)
+    return Report(table, written, compare_with_paper(table, groups))

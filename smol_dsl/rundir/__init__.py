@@ -14,12 +14,15 @@ Modules, one concept each:
   and a row's values `body_columns`), `MetricsLog` and the checked reader `read_metrics`;
 - `certificate`: certificate.json and .txt;
 - `archive`: archive.npz (`write_archive`, `load_archive`, `read_final_archive`);
+- `environment`: environment.json, what a run ran under (`describe_environment`,
+  `environment_differences`);
 - `record`: a run directory as a whole (`write_run_files`; `read_run` -> `RunRecord`).
 
 Writing, for the runner (every file is written atomically, and an OSError names the file
 that could not be written):
 
-    write_run_files(directory, config, schedule) -> list[Path]   # config.json, schedule.sched, certificate.*
+    write_run_files(directory, config, schedule, environment) -> list[Path]   # config.json, environment.json,
+                                                       # schedule.sched, certificate.*
     log = MetricsLog(directory / METRICS_FILE, rows)   # exactly `rows`, written atomically
     log.append(metrics_row(generation=..., phase=..., alpha=..., event="train", ...))
     write_archive(directory / ARCHIVE_FILE, arrays)    # {"genotypes/<param path>": (C, ...), "fitnesses",
@@ -43,6 +46,14 @@ from smol_dsl.rundir.archive import (
 )
 from smol_dsl.rundir.certificate import CertificateRecord, certificate_record, certificate_text, read_certificate
 from smol_dsl.rundir.config import RunConfig, read_config
+from smol_dsl.rundir.environment import (
+    describe_environment,
+    environment_differences,
+    read_environment,
+    read_environment_changes,
+    record_environment_change,
+    write_environment,
+)
 from smol_dsl.rundir.files import atomic_write, read_text, write_npz, write_text
 from smol_dsl.rundir.layout import (
     ARCHIVE_FIGURE,
@@ -51,6 +62,7 @@ from smol_dsl.rundir.layout import (
     CERTIFICATE_TEXT_FILE,
     CHECKPOINT_FILE,
     CONFIG_FILE,
+    ENVIRONMENT_FILE,
     FILES,
     LOCK_FILE,
     METRICS_FIGURE,
@@ -95,6 +107,7 @@ __all__ = [
     "CERTIFICATE_TEXT_FILE",
     "CHECKPOINT_FILE",
     "CONFIG_FILE",
+    "ENVIRONMENT_FILE",
     "EVENTS",
     "FILES",
     "GENOTYPES",
@@ -124,6 +137,8 @@ __all__ = [
     "certificate_text",
     "channel_column",
     "column_name",
+    "describe_environment",
+    "environment_differences",
     "files_markdown",
     "final_body_evaluations",
     "first_tail_phase",
@@ -133,13 +148,17 @@ __all__ = [
     "metrics_schema",
     "read_certificate",
     "read_config",
+    "read_environment",
+    "read_environment_changes",
     "read_final_archive",
     "read_metrics",
     "read_run",
     "read_text",
+    "record_environment_change",
     "scheduled_columns",
     "schema_of_header",
     "write_archive",
+    "write_environment",
     "write_npz",
     "write_run_files",
     "write_text",

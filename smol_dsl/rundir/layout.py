@@ -13,6 +13,7 @@ from pathlib import Path
 from smol_dsl.errors import UserInputError
 
 CONFIG_FILE = "config.json"
+ENVIRONMENT_FILE = "environment.json"
 SCHEDULE_FILE = "schedule.sched"
 CERTIFICATE_FILE = "certificate.json"
 CERTIFICATE_TEXT_FILE = "certificate.txt"
@@ -27,6 +28,12 @@ SWEEP_CHECKPOINT_FILE = "sweep-checkpoint.npz"
 
 FILES = (
     (CONFIG_FILE, "the resolved settings (`RunConfig`)"),
+    (
+        ENVIRONMENT_FILE,
+        "the software and hardware the run was produced by (Python, jax, brax, qdax and other versions, smol-dsl's "
+        "version and commit, the devices, the processor and its vector extensions), and every resume allowed "
+        "under another",
+    ),
     (SCHEDULE_FILE, "the schedule's source"),
     (CERTIFICATE_FILE, "what was proven about the schedule, with its `name` and `tail_start` (where α = 1 for good)"),
     (CERTIFICATE_TEXT_FILE, "the same certificate, as `smol-dsl check` prints it"),

@@ -21,11 +21,13 @@ from smol_dsl.language.schedule import parse
 from smol_dsl.rundir.archive import FinalArchive, read_final_archive
 from smol_dsl.rundir.certificate import CertificateRecord, certificate_record, certificate_text, read_certificate
 from smol_dsl.rundir.config import RunConfig, read_config
+from smol_dsl.rundir.environment import environment_text, read_environment
 from smol_dsl.rundir.files import read_text, write_text
 from smol_dsl.rundir.layout import (
     CERTIFICATE_FILE,
     CERTIFICATE_TEXT_FILE,
     CONFIG_FILE,
+    ENVIRONMENT_FILE,
     METRICS_FILE,
     SCHEDULE_FILE,
     RunDirectoryError,
@@ -39,12 +41,16 @@ if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
 
 
-def write_run_files(directory: Path, config: RunConfig, schedule: Schedule) -> list[Path]:
-    """A new run's config.json, schedule.sched, certificate.json and certificate.txt, each
-    written atomically. If one cannot be written (a full disk), those written are removed and
-    the OSError, naming the file, is raised: nothing is left half set up."""
+def write_run_files(
+    directory: Path, config: RunConfig, schedule: Schedule, environment: dict[str, Any] | None = None
+) -> list[Path]:
+    """A new run's config.json, environment.json (`describe_environment`; None: left out),
+    schedule.sched, certificate.json and certificate.txt, each written atomically. If one
+    cannot be written (a full disk), those written are removed and the OSError, naming the
+    file, is raised: nothing is left half set up."""
     texts = {
         CONFIG_FILE: config.to_json(),
+        **({ENVIRONMENT_FILE: environment_text(environment)} if environment is not None else {}),
         SCHEDULE_FILE: schedule.source,
         CERTIFICATE_FILE: json.dumps(certificate_record(schedule), indent=2),
         CERTIFICATE_TEXT_FILE: certificate_text(schedule),
@@ -78,6 +84,8 @@ class RunRecord:
     body: Mapping[str, tuple[float, ...]] = dataclasses.field(default_factory=dict)
     """The final body resolved per part (`tasks.anatomy.resolve`): each actuator's gear and
     link's mass factor, friction's and gravity's; a kind left out is 1 throughout."""
+    environment: Mapping[str, Any] | None = None
+    """What the run was started under (environment.json; None where the run recorded none)."""
 
     @property
     def task(self) -> str:
@@ -143,6 +151,7 @@ def read_run(directory: Path) -> RunRecord:
         final_body=final_body,
         channels=schedule.channels,
         body=resolve(task_spec(config.task).anatomy, schedule.final_body),
+        environment=read_environment(directory),
     )
     if run.finished:
         run = dataclasses.replace(run, archive=read_final_archive(directory, config))

@@ -20,7 +20,19 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from smol_dsl.errors import Message, Setting
-from smol_dsl.rundir import CONFIG_FILE, LOCK_FILE, SCHEDULE_FILE, SWEEP_FILE, RunConfig, write_run_files, write_text
+from smol_dsl.rundir import (
+    CONFIG_FILE,
+    ENVIRONMENT_FILE,
+    LOCK_FILE,
+    SCHEDULE_FILE,
+    SWEEP_FILE,
+    RunConfig,
+    environment_differences,
+    read_environment,
+    record_environment_change,
+    write_run_files,
+    write_text,
+)
 from smol_dsl.runner.checkpoint import write_failure
 from smol_dsl.runner.config import RunError
 from smol_dsl.runner.lock import DirectoryLock
@@ -47,15 +59,25 @@ def out_path(out_dir: str | Path | None) -> Path | None:
     return Path(out_dir)
 
 
-def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig, resume: bool) -> DirectoryLock:
-    """Check a directory to resume, or create one and write the run's settings into it.
+def prepare_run_directory(
+    directory: Path,
+    schedule: Schedule,
+    config: RunConfig,
+    resume: bool,
+    environment: dict[str, Any] | None = None,
+    allow_environment_change: bool = False,
+) -> DirectoryLock:
+    """Check a directory to resume, or create one and write the run's settings into it,
+    with the `environment` it runs under (`describe_environment`). A run resumed under an
+    environment other than the one it recorded is refused, naming what differs, unless
+    `allow_environment_change` (the change is then recorded in its environment.json).
 
     Returns the directory's lock, held: the caller releases it when the run ends (it is a
     context manager). A second process on the same directory is refused with a RunError.
     """
     check_out_dir(directory)
     if resume:
-        return _resume_run_directory(directory, schedule, config)
+        return _resume_run_directory(directory, schedule, config, environment, allow_environment_change)
     if non_empty(directory):
         raise busy(directory)
     make_directory(directory, "run")
@@ -63,14 +85,20 @@ def prepare_run_directory(directory: Path, schedule: Schedule, config: RunConfig
     try:
         if non_empty(directory):  # another process set it up since we looked
             raise busy(directory)
-        set_up(directory, lambda: write_run_files(directory, config, schedule))
+        set_up(directory, lambda: write_run_files(directory, config, schedule, environment))
     except BaseException:
         lock.release()
         raise
     return lock
 
 
-def _resume_run_directory(directory: Path, schedule: Schedule, config: RunConfig) -> DirectoryLock:
+def _resume_run_directory(
+    directory: Path,
+    schedule: Schedule,
+    config: RunConfig,
+    environment: dict[str, Any] | None,
+    allow_environment_change: bool,
+) -> DirectoryLock:
     config_path = directory / CONFIG_FILE
     if not config_path.is_file():
         if (directory / SWEEP_FILE).is_file():
@@ -100,11 +128,32 @@ def _resume_run_directory(directory: Path, schedule: Schedule, config: RunConfig
                 f"{directory} was started with a different schedule: {what} is not the text in {schedule_path}; "
                 f"resume it with the schedule it was started with (for instance {schedule_path} itself)"
             )
+        if environment is not None:
+            _check_environment(directory, environment, allow_environment_change)
         remove_stale_temporaries(directory)
     except BaseException:
         lock.release()
         raise
     return lock
+
+
+def _check_environment(directory: Path, environment: dict[str, Any], allow_change: bool) -> None:
+    """Refuse to resume a run under an environment other than the one it recorded (its
+    numbers would mix two compilations of the physics), or record the change if allowed."""
+    recorded = read_environment(directory)
+    if recorded is None:  # a run from before runs recorded their environment
+        return
+    differences = environment_differences(recorded, environment)
+    if not differences:
+        return
+    if not allow_change:
+        raise RunError(
+            f"{directory} was started under another environment ({ENVIRONMENT_FILE}): "
+            + "; ".join(differences)
+            + ". Its numbers would mix two builds of the physics: resume it where it was started, or pass "
+            "--allow-environment-change to go on (the change is recorded in its environment.json)"
+        )
+    record_environment_change(directory, environment, differences)
 
 
 def check_out_dir(directory: Path) -> None:
@@ -253,6 +302,8 @@ def prepare_sweep_directory(
     resume: bool,
     shared: bool,
     checkpoint_name: str,
+    environment: dict[str, Any] | None = None,
+    allow_environment_change: bool = False,
 ) -> contextlib.ExitStack:
     """Write or check sweep.json (all runs) and prepare this process's run directories.
     A directory `shared` by several processes may already hold the others' runs.
@@ -275,7 +326,9 @@ def prepare_sweep_directory(
         if not resume:
             set_up(directory, lambda: write_text(directory / SWEEP_FILE, json.dumps(description, indent=2)))
         for run in runs:
-            locks.enter_context(_prepare_sweep_run(directory / run.name, run, resume))
+            locks.enter_context(
+                _prepare_sweep_run(directory / run.name, run, resume, environment, allow_environment_change)
+            )
         if resume:
             _check_process_count(directory, checkpoint_name)
             remove_stale_temporaries(directory, prefix=f"{checkpoint_name}.")
@@ -325,11 +378,19 @@ def _check_sweep_file(directory: Path, description: dict[str, Any], compare: boo
         )
 
 
-def _prepare_sweep_run(run_directory: Path, run: PlannedRun, resume: bool) -> DirectoryLock:
+def _prepare_sweep_run(
+    run_directory: Path,
+    run: PlannedRun,
+    resume: bool,
+    environment: dict[str, Any] | None,
+    allow_environment_change: bool,
+) -> DirectoryLock:
     """Prepare one run directory of the sweep; on resume, one deleted since the sweep started
     is set up again (the sweep's checkpoint holds its state)."""
     again = resume and not (run_directory / CONFIG_FILE).exists() and not non_empty(run_directory)
-    return prepare_run_directory(run_directory, run.schedule, run.config, resume and not again)
+    return prepare_run_directory(
+        run_directory, run.schedule, run.config, resume and not again, environment, allow_environment_change
+    )
 
 
 _CHECKPOINT_NAME = re.compile(r"sweep-checkpoint(?:-(\d+)-of-(\d+))?\.npz")

@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.tasks.base import Task
 
-from smol_dsl.rundir import CHECKPOINT_FILE
+from smol_dsl.rundir import CHECKPOINT_FILE, describe_environment
 from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_run_directory, run_name
 from smol_dsl.runner.engine import shared_engine
@@ -41,6 +41,7 @@ def run_experiment(
     progress: Callable[[dict[str, Any], int], None] | None = None,
     stop_after_generation: int | None = None,
     devices: Sequence[jax.Device] | None = None,
+    allow_environment_change: bool = False,
 ) -> RunResult:
     """Run phased MAP-Elites of `task` under `schedule`; return the archive and metrics.
 
@@ -49,6 +50,8 @@ def run_experiment(
     with `resume`, continues from its last checkpoint. `progress(row, total_generations)` is
     called after every row. `stop_after_generation` stops early (as an interruption would),
     for tests. `devices` (default: every local device) share each generation's population.
+    The run records what it runs under (environment.json); resuming under another
+    environment is refused unless `allow_environment_change`.
     A directory that cannot be used, a damaged checkpoint or a disk that cannot be written
     is a RunError that names the file and says what to do; a schedule whose channels name
     parts the task's body lacks, a located ScheduleError.
@@ -61,7 +64,11 @@ def run_experiment(
     run = PlannedRun(schedule, config, run_name(config.task, schedule, config.seed), directory)
     with contextlib.ExitStack() as held:
         if directory is not None:  # locked until the run returns: one process at a time
-            held.enter_context(prepare_run_directory(directory, schedule, config, resume))
+            held.enter_context(
+                prepare_run_directory(
+                    directory, schedule, config, resume, describe_environment(devices), allow_environment_change
+                )
+            )
         engine = shared_engine(task, config, devices, footprint.runs_per_step, 1, schedule.channels)
         results = train(
             engine,

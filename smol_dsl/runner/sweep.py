@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.tasks.base import Task
 
-from smol_dsl.rundir import SWEEP_CHECKPOINT_FILE
+from smol_dsl.rundir import SWEEP_CHECKPOINT_FILE, describe_environment
 from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_sweep_directory, run_name
 from smol_dsl.runner.engine import shared_engine
@@ -74,6 +74,7 @@ def run_sweep(
     progress: Progress | None = None,
     stop_after_generation: int | None = None,
     devices: Sequence[jax.Device] | None = None,
+    allow_environment_change: bool = False,
     runs_per_step: int | None = -1,
     part: tuple[int, int] = (0, 1),
 ) -> list[RunResult]:
@@ -87,7 +88,9 @@ def run_sweep(
     cannot fit the devices' memory is refused with a RunError before anything compiles.
     `progress(rows, total)` gets the latest row of every run.
     `part=(k, n)` runs only every n-th pair from the k-th (one process of n sharing a
-    sweep, each on its own devices; see docs/scaling.md) and returns those.
+    sweep, each on its own devices; see docs/scaling.md) and returns those. Every run
+    records what it runs under (environment.json); resuming under another environment is
+    refused unless `allow_environment_change`.
     """
     started = time.perf_counter()
     directory = out_path(out_dir)
@@ -105,7 +108,17 @@ def run_sweep(
     with contextlib.ExitStack() as held:
         if directory is not None:  # this process's run directories stay locked until it returns
             held.enter_context(
-                prepare_sweep_directory(directory, every, runs, config, resume, parts > 1, checkpoint_name)
+                prepare_sweep_directory(
+                    directory,
+                    every,
+                    runs,
+                    config,
+                    resume,
+                    parts > 1,
+                    checkpoint_name,
+                    describe_environment(devices),
+                    allow_environment_change,
+                )
             )
         channels = run_channels([run.schedule for run in runs])
         engine = shared_engine(task, config, devices, runs_per_step, len(runs), channels)

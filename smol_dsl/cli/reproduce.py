@@ -1,0 +1,93 @@
+"""`smol-dsl reproduce TASK`: the paper's experiment for a task in one command.
+
+The paper's eight conditions (`PAPER_CONDITIONS`) x `--seeds` (10, as in the paper) as one
+sweep in the paper's settings (`--preset paper`, the default on an accelerator; `quick` on
+CPUs, where the paper's budget would take weeks), resumable with `--resume` and taking
+every option of `sweep`; then the report, with the paper's table beside ours
+(paper-comparison.md) and, where the settings are not the paper's, the deviations named.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from smol_dsl.cli import common
+from smol_dsl.cli.common import EXIT_OK, UsageError
+from smol_dsl.cli.run import Sweep, add_sweep_options, sweep_part, use_cpu_cores_as_devices
+
+if TYPE_CHECKING:
+    from smol_dsl.cli.run import Plan
+    from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir import RunConfig
+    from smol_dsl.runner import RunResult
+
+PAPER_TASKS = ("walker2d", "halfcheetah", "ant_omni")
+PAPER_CONDITIONS = (
+    "smol",
+    "smol-reverse",
+    "human",
+    "vanilla",
+    "random",
+    "extinction-05",
+    "extinction-10",
+    "extinction-50",
+)
+"""The bundled schedules of the paper's eight conditions, in its table's order."""
+PAPER_SEEDS = 10
+
+
+def add_parsers(commands: argparse._SubParsersAction) -> None:
+    reproduce = commands.add_parser(
+        "reproduce",
+        help="the paper's experiment for a task: its eight conditions, its seeds, then the report",
+        description="Run the paper's eight conditions (SMOL, SMOL-Reverse, SMOL-Human, Vanilla MAP-Elites, "
+        "Random, Extinction 5/10/50%) x --seeds as one sweep, then write the report with the paper's table "
+        "beside ours (paper-comparison.md: every p-value, ours and the paper's, and a verdict). The default "
+        "preset is the paper's on an accelerator and `quick` on CPUs; other settings are named in the "
+        "comparison, which then compares only directions and significance. Takes sweep's options.",
+    )
+    reproduce.add_argument("task", metavar="TASK", help=f"one of the paper's tasks: {', '.join(PAPER_TASKS)}")
+    add_sweep_options(reproduce, seeds=PAPER_SEEDS)
+    reproduce.set_defaults(handle=Reproduce().train, seed=None, preset=None)
+
+
+class Reproduce(Sweep):
+    """`smol-dsl reproduce`: `sweep` of the paper's conditions, then `report`."""
+
+    command = "reproduce"
+
+    def train(self, args: argparse.Namespace) -> int:
+        if args.task not in PAPER_TASKS:
+            raise UsageError(
+                f"the paper ran {', '.join(PAPER_TASKS)}, not {args.task!r}; "
+                f"use `smol-dsl sweep {args.task} SCHEDULE...` for other tasks"
+            )
+        if args.preset is None:
+            use_cpu_cores_as_devices()  # before JAX starts: the devices a sweep here would use
+            args.preset = "quick" if common.devices(args)[0].platform == "cpu" else "paper"
+        args.schedules = list(PAPER_CONDITIONS)
+        code = super().train(args)
+        if code != EXIT_OK or args.dry_run or sweep_part(args) != (0, 1):
+            return code  # a process sharing a sweep leaves the report to `smol-dsl report`
+        return self.report(args)
+
+    def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
+        return Path("runs") / f"{args.task}-reproduce"
+
+    def summary(self, plan: Plan, results: list[RunResult]) -> str:
+        from smol_dsl.runner.progress import sweep_summary
+
+        return sweep_summary(results, plan.out).split("\n")[0]  # the report comes next, here
+
+    def report(self, args: argparse.Namespace) -> int:
+        from smol_dsl.results import report as results_report
+
+        out = Path(args.out) if args.out is not None else Path("runs") / f"{args.task}-reproduce"
+        written = results_report.write_report([out], out / "report", force=True)
+        print(f"{written.table.task}, final {written.table.metric}:\n\n{written.table.markdown()}")
+        if written.comparison is not None:
+            print(written.comparison.summary())
+        print(f"report: {out / 'report'} (paper-comparison.md: our p-values beside the paper's)")
+        return EXIT_OK
