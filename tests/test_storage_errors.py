@@ -206,8 +206,8 @@ def test_full_disk_while_setting_up_leaves_nothing(library, tmp_path, monkeypatc
         return real(path, write)
 
     monkeypatch.setattr(rundir_files, "atomic_write", atomic)
-    with pytest.raises(RunError, match=r"schedule.sched: No space left on device; nothing was started"):
-        run_experiment("walker2d", library["human"], CONFIG, out_dir=out)
+    with pytest.raises(RunError, match=r"environment.json: No space left on device; nothing was started"):
+        run_experiment("walker2d", library["human"], CONFIG, out_dir=out)  # the second file the run writes
     assert [p.name for p in out.iterdir() if p.name != LOCK_FILE] == []  # config.json removed again
 
 
