@@ -491,9 +491,11 @@ def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str
     return earlier
 
 
-def render_report(groups: dict[str, list[RunRecord]], table: PValueTable, gaits: int = 0) -> dict[str, bytes]:
+def render_report(
+    groups: dict[str, list[RunRecord]], table: PValueTable, gaits: int = 0, comparison: Comparison | None = None
+) -> dict[str, bytes]:
     """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv,
-    paper-comparison.md and .tex (our p-values beside the paper's, for its tasks), the
+    paper-comparison.md and .tex (`comparison`: our p-values beside the paper's), the
     figures (PNG and PDF), with `gaits` > 0 a GIF of that many elites of each schedule's
     median run (`gaits-*.gif`: the best, then spread over the archive), and index.html,
     the page that shows them all and needs nothing but the files beside it."""
@@ -512,7 +514,6 @@ def render_report(groups: dict[str, list[RunRecord]], table: PValueTable, gaits:
         for run in runs:
             writer.writerow([name, run.seed, *(run.final[m] for m in METRICS), str(run.directory)])
     files["scores.csv"] = scores.getvalue().encode()
-    comparison = compare_with_paper(table, groups)
     if comparison is not None:  # a task and metric of the paper's table
         files["paper-comparison.md"] = comparison.markdown().encode()
         files["paper-comparison.tex"] = comparison.latex().encode()
@@ -647,6 +648,7 @@ def write_report(
     earlier = check_output_directory(out_dir, force)
     groups = load_runs(paths, allow_mixed_environments)
     table = pvalue_table(groups, metric)
-    files = render_report(groups, table, gaits)
+    comparison = compare_with_paper(table, groups)
+    files = render_report(groups, table, gaits, comparison)
     written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
-    return Report(table, written, compare_with_paper(table, groups))
+    return Report(table, written, comparison)

@@ -52,7 +52,6 @@ from smol_dsl.rundir.environment import (
     read_environment,
     read_environment_changes,
     record_environment_change,
-    write_environment,
 )
 from smol_dsl.rundir.files import atomic_write, read_text, write_npz, write_text
 from smol_dsl.rundir.layout import (
@@ -158,7 +157,6 @@ __all__ = [
     "scheduled_columns",
     "schema_of_header",
     "write_archive",
-    "write_environment",
     "write_npz",
     "write_run_files",
     "write_text",

@@ -100,11 +100,6 @@ def environment_text(environment: dict[str, Any]) -> str:
     return json.dumps({"environment": environment, "changes": []}, indent=2)
 
 
-def write_environment(directory: Path, environment: dict[str, Any]) -> None:
-    """A new run's environment.json."""
-    write_text(directory / ENVIRONMENT_FILE, environment_text(environment))
-
-
 def record_environment_change(directory: Path, current: dict[str, Any], differences: list[str]) -> None:
     """Note in environment.json that the run went on under `current` (allowed by the user)."""
     data = _environment_file(directory)
