@@ -34,13 +34,15 @@ def write_run(
     *,
     task: str = "walker2d",
     finished: bool = True,
+    reevaluate: bool = False,
     **overrides: object,
 ) -> Path:
     """A run directory in the runner's format (written by smol_dsl.rundir's writers) whose
     last row has the given final scores: the runner's certificate.json, metrics.csv with a
     column per scheduled channel (its factor in the row's phase; `alpha` is 1 unless plain
-    gear is scheduled) and an archive of zero policies of the task's network's shapes whose
-    elites score what the last row says (`final_archive`)."""
+    gear is scheduled), with `reevaluate` a reevaluate row at every phase boundary with random
+    counts (the runner's rows; without it, none), and an archive of zero policies of the task's network's shapes
+    whose elites score what the last row says (`final_archive`)."""
     config = preset_config(task, "quick", seed=seed, **{**SETTINGS, **overrides})
     sched = library[schedule]
     directory.mkdir(parents=True)
@@ -53,19 +55,29 @@ def write_run(
     rng = np.random.default_rng(seed)
     fitnesses, scores = final_archive(rng, task, config, final) if finished else (None, {})
     rows = []
+    reevaluations = 0
     for generation in range(last + 1):
         phase = config.phase_of_generation(generation) if generation else 0
+        if rows and phase > rows[-1]["phase"] and reevaluate:  # a phase boundary's re-evaluation
+            before = int(rng.integers(1, config.num_centroids))
+            kept, moved, collided = (int(n) for n in rng.multinomial(before, [0.5, 0.2, 0.2, 0.1])[:3])
+            reevaluations += before
+            counts = dict(reevaluated=before, kept=kept, moved=moved, collided=collided)
+            counts["died"] = before - kept - moved - collided
+            rows.append({**rows[-1], "phase": phase, "event": "reevaluate", "reevaluations": reevaluations, **counts})
+            rows[-1].update(rundir.body_columns(sched.channels, bodies[phase]))
         row = {
             "generation": generation,
             "phase": phase,
             "alpha": 1.0,
             "event": "train" if generation else "init",
             "evaluations": (generation + 1) * config.batch_size,
-            "reevaluations": 0,
+            "reevaluations": reevaluations,
             "coverage": rng.uniform(0, 50),
             "max_fitness": rng.uniform(0, 100),
             "qd_score": rng.uniform(0, 1000),
             "non_finite": 0,
+            **dict.fromkeys(rundir.REEVALUATION_FIELDS),
         }
         row.update(rundir.body_columns(sched.channels, bodies[phase]))
         if generation == last:

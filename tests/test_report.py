@@ -164,6 +164,18 @@ def test_report_writes_table_scores_and_figures(synthetic, tmp_path):
     assert {float(r["max_fitness"]) for r in rows if r["schedule"] == "SMOL"} == set(SCORES["smol"])
 
 
+def test_runs_that_count_their_reevaluations_get_a_reevaluation_figure(tmp_path, library):
+    """Runs whose reevaluate rows count the elites kept (as the runner writes them) get
+    reevaluation.png, shown on the page; runs written before the counts existed (as the
+    `synthetic` fixture's) get every other file."""
+    for seed in range(2):
+        for name in ("smol", "vanilla"):
+            write_run(tmp_path / f"{name}-{seed}", library, name, seed, {"max_fitness": float(seed)}, reevaluate=True)
+    names = {path.name for path in write_report([tmp_path], tmp_path / "out").files}
+    assert {"reevaluation.png", "reevaluation.pdf", "main-results.png"} <= names
+    assert 'src="reevaluation.png"' in (tmp_path / "out" / "index.html").read_text()
+
+
 def test_ablations_get_their_own_figure(tmp_path, library):
     for seed in range(2):
         for name in ("smol", "vanilla", "random", "extinction-10"):
@@ -531,7 +543,7 @@ def test_report_option_mistakes(pristine, tmp_path, capsys):
 def test_report_of_many_schedules_without_warnings(tmp_path, capsys):
     schedules = {f"s{k}": smol_dsl.load(p) for k, p in enumerate(many_schedules(tmp_path, 12), start=1)}
     for name in schedules:
-        write_run(tmp_path / "runs" / name, schedules, name, 0, {"max_fitness": float(len(name))})
+        write_run(tmp_path / "runs" / name, schedules, name, 0, {"max_fitness": float(len(name))}, reevaluate=True)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out"), "--no-gaits"]) == 0

@@ -9,6 +9,7 @@ once and copied into tmp_path before each test damages them.
 
 from __future__ import annotations
 
+import csv
 import errno
 import io
 import json
@@ -24,6 +25,7 @@ from smol_dsl import GEAR, Channel, rundir
 from smol_dsl.rundir import (
     METRIC_FIELDS,
     METRICS_SCHEMA,
+    REEVALUATION_FIELDS,
     Column,
     MetricsLog,
     MetricsSchema,
@@ -54,10 +56,12 @@ def runs(pristine, tmp_path) -> Path:
 
 def rows_of(schema: MetricsSchema, **extra: float) -> list[dict]:
     common = dict(alpha=1.5, reevaluations=0, coverage=12.5, max_fitness=3.25, qd_score=40.0, non_finite=0, **extra)
+    unmeasured = dict.fromkeys(REEVALUATION_FIELDS)
+    counts = dict(reevaluated=4, kept=2, moved=1, collided=1, died=0)
     return [
-        schema.row(generation=0, phase=0, event="init", evaluations=16, **common),
-        schema.row(generation=1, phase=0, event="train", evaluations=32, **common),
-        schema.row(generation=1, phase=1, event="reevaluate", evaluations=32, **common),
+        schema.row(generation=0, phase=0, event="init", evaluations=16, **common, **unmeasured),
+        schema.row(generation=1, phase=0, event="train", evaluations=32, **common, **unmeasured),
+        schema.row(generation=1, phase=1, event="reevaluate", evaluations=32, **common, **counts),
     ]
 
 
@@ -73,8 +77,41 @@ def test_the_header_is_the_schema():
         "max_fitness",
         "qd_score",
         "non_finite",
+        "reevaluated",
+        "kept",
+        "moved",
+        "collided",
+        "died",
     )
     assert METRICS_SCHEMA["alpha"].axis_label == "α" and METRICS_SCHEMA["qd_score"].axis_label == "QD score"
+
+
+def test_reevaluation_counts_are_on_reevaluate_rows_only_and_add_up(tmp_path):
+    path = tmp_path / "metrics.csv"
+    rows = rows_of(METRICS_SCHEMA)
+    MetricsLog(path, rows)
+    assert path.read_text().splitlines()[2].endswith(",0,,,,,")  # a train row: the counts are empty
+    assert read_metrics(path) == rows
+
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([*lines[:3], lines[3].replace(",2,1,1,0", ",2,1,1,1")]) + "\n")
+    with pytest.raises(RunDirectoryError, match=r"metrics.csv:4: reevaluated 4, kept 2, moved 1, collided 1, died 1"):
+        read_metrics(path)
+    path.write_text("\n".join([*lines[:2], lines[2][: -len(",,,,,")] + ",4,2,1,1,0", lines[3]]) + "\n")
+    with pytest.raises(RunDirectoryError, match=r"metrics.csv:3: reevaluated is '4' on an train row"):
+        read_metrics(path)
+
+
+def test_a_metrics_file_written_before_the_reevaluation_counts_reads(tmp_path):
+    """Runs written before the counts were measured lack their columns: read as empty."""
+    path = tmp_path / "metrics.csv"
+    older = [name for name in METRIC_FIELDS if name not in REEVALUATION_FIELDS]
+    rows = rows_of(METRICS_SCHEMA)
+    with open(path, "w", newline="") as file:
+        writer = csv.DictWriter(file, older, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    assert read_metrics(path) == [{**row, **dict.fromkeys(REEVALUATION_FIELDS)} for row in rows]
 
 
 def test_a_float_column_added_to_the_schema_flows_through_writer_and_reader(tmp_path):
@@ -196,8 +233,8 @@ def test_truncated_archive_is_refused_before_anything_is_written(runs, tmp_path,
 @pytest.mark.parametrize(
     ("damage", "line", "words"),
     [
-        (lambda lines: [*lines, "garbage,row"], LAST_LINE + 1, "2 values where the header has 10 columns"),
-        (lambda lines: [*lines[:5], "this is not,a row,,,,,,,,", *lines[5:]], 6, "is 'this is not', not a whole"),
+        (lambda lines: [*lines, "garbage,row"], LAST_LINE + 1, "2 values where the header has 15 columns"),
+        (lambda lines: [*lines[:5], "this is not,a row" + "," * 13, *lines[5:]], 6, "is 'this is not', not a whole"),
         (lambda lines: [*lines[:3], lines[3].replace(",train,", ",2.5,"), *lines[4:]], 4, "event is '2.5'"),
         (lambda lines: [*lines[:3], _field(lines[3], 6, "nan"), *lines[4:]], 4, "coverage is 'nan'"),
         (lambda lines: [*lines[:3], _field(lines[3], 8, "inf"), *lines[4:]], 4, "qd_score is 'inf'"),

@@ -27,6 +27,7 @@ from smol_dsl.runner import (
     schedule_key,
 )
 from smol_dsl.runner.engine import Engine, shared_engine, stack_runs
+from smol_dsl.rundir import REEVALUATION_FIELDS
 from smol_dsl.runner.map_elites import cvt_centroids
 
 
@@ -66,7 +67,15 @@ def test_budget_and_reevaluation_counts(human_run):
         filled_before = round(rows[i - 1]["coverage"] * config.num_centroids / 100)
         assert rows[i]["reevaluations"] - rows[i - 1]["reevaluations"] == filled_before
         assert rows[i]["evaluations"] == rows[i - 1]["evaluations"]
+        # ... and says what became of them: every elite kept, moved, collided or died, and the
+        # cells filled after are those that kept or received an elite
+        row = rows[i]
+        assert row["reevaluated"] == filled_before
+        assert row["kept"] + row["moved"] + row["collided"] + row["died"] == filled_before
+        assert row["kept"] + row["moved"] == round(row["coverage"] * config.num_centroids / 100)
+        assert row["died"] == row["non_finite"]  # human.sched has no extinction
     assert rows[-1]["reevaluations"] > 0
+    assert all(row[name] is None for row in rows if row["event"] != "reevaluate" for name in REEVALUATION_FIELDS)
 
 
 @pytest.mark.slow
@@ -192,7 +201,7 @@ def test_extinction_removes_about_p_of_the_elites(task, human_run):
 
     def reevaluated(extinction, seed):
         rate = engine.put(jnp.full((1,), extinction, jnp.float32))
-        survivors, _, _ = engine.reevaluate(archive, alpha, start, rate, engine.put(jax.random.key(seed)[None]))
+        survivors, _ = engine.reevaluate(archive, alpha, start, rate, engine.put(jax.random.key(seed)[None]))
         return filled(survivors)
 
     everyone = reevaluated(0.0, 0)
@@ -257,8 +266,13 @@ def test_non_finite_results_never_enter_the_archive(task, monkeypatch):
     archive, _, dropped, reseeded = engine.step(archive, alpha * 1.2, start, engine.put(jax.random.key(2)[None]))
     assert not bool(reseeded[0]) and int(dropped[0]) == 11
     rate = engine.put(jnp.zeros((1,), jnp.float32))
-    archive, _, _ = engine.reevaluate(archive, alpha * 0.8, start, rate, engine.put(jax.random.key(3)[None]))
+    before = int(np.sum(np.asarray(archive.fitnesses) > -np.inf))
+    archive, counts = engine.reevaluate(archive, alpha * 0.8, start, rate, engine.put(jax.random.key(3)[None]))
     fitnesses = np.asarray(archive.fitnesses).reshape(-1)
+    # no extinction: the elites that died are the non-finite ones; the others fill the cells
+    assert counts.reevaluated[0] == before and counts.died[0] == counts.non_finite[0]
+    assert counts.kept[0] + counts.moved[0] == counts.filled[0] == np.sum(fitnesses > -np.inf)
+    assert counts.kept[0] + counts.moved[0] + counts.collided[0] + counts.died[0] == before
     assert np.all(np.isfinite(fitnesses[fitnesses > -np.inf]))
     assert np.all(np.isfinite(np.asarray(archive.descriptors).reshape(-1, 2)[fitnesses > -np.inf]))
 

@@ -110,7 +110,7 @@ def test_each_run_of_a_sweep_is_thinned_by_its_own_extinction(sweep):
     cells = np.flatnonzero(np.asarray(archive.fitnesses).reshape(-1) > -np.inf)  # the order they are re-scored in
     assert 0 < len(cells) <= CONFIG.batch_size  # one chunk
     key = jax.random.key(11)
-    fresh, evaluated, _ = engine.reevaluate(
+    fresh, counts = engine.reevaluate(
         engine.put(stack_runs([archive] * 4)),
         engine.put(jnp.ones((4, 1))),
         engine.put(stack_runs([engine.task.episode_start(0)] * 4)),
@@ -118,11 +118,15 @@ def test_each_run_of_a_sweep_is_thinned_by_its_own_extinction(sweep):
         engine.put(jnp.stack([key] * 4)),
     )
     kept = [set(np.flatnonzero(np.asarray(f).reshape(-1) > -np.inf)) for f in fresh.fitnesses]
-    assert list(evaluated) == [len(cells)] * 4
+    assert list(counts.reevaluated) == [len(cells)] * 4
     draws = jax.random.uniform(jax.random.split(key, 3)[2], (CONFIG.batch_size,))  # a chunk's death draws
     survivors = {int(cell) for cell, draw in zip(cells, np.asarray(draws)) if draw >= 0.5}
     assert kept[0] == set(cells) and kept[2] == set()
     assert kept[1] == kept[3] == survivors
+    # in the body they were trained in, every survivor keeps its own cell: none moves or collides
+    assert list(counts.kept) == [len(cells), len(survivors), 0, len(survivors)]
+    assert list(counts.died) == [0, len(cells) - len(survivors), len(cells), len(cells) - len(survivors)]
+    assert not counts.moved.any() and not counts.collided.any() and not counts.non_finite.any()
 
 
 @pytest.mark.slow

@@ -385,15 +385,17 @@ def _announce_footprint(plan: Plan, command: str) -> Footprint:
 def _with_progress(
     args: argparse.Namespace, config: RunConfig, start: Callable[[Any], list[RunResult]]
 ) -> list[RunResult]:
-    """start(progress callback or None), with a progress bar unless --no-progress."""
-    from smol_dsl.runner.progress import ProgressBar
+    """start(progress callback), with a progress bar unless --no-progress; without one, a
+    re-evaluation that leaves under half the cells filled is still reported."""
+    from smol_dsl.runner.progress import ProgressBar, ReevaluationWarnings
 
-    bar = None if args.no_progress else ProgressBar(config)
+    if args.no_progress:
+        return start(ReevaluationWarnings(config).update)
+    bar = ProgressBar(config)
     try:
-        return start(bar.update if bar else None)
+        return start(bar.update)
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
 
 
 def _draw_figures(results: Sequence[RunResult]) -> None:

@@ -12,7 +12,8 @@ so `reevaluate` with the run's batch size and key is the runner's re-evaluation.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from functools import partial
+from dataclasses import dataclass
+from functools import cache
 from typing import TYPE_CHECKING, Any
 
 import jax
@@ -72,14 +73,57 @@ def insert_chunk(
     valid: jax.Array,
     extinction: jax.Array,
     death_key: jax.Array,
-) -> tuple[MapElitesRepertoire, jax.Array]:
+) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
     """Re-scored elites that are `valid` (not padding), survive extinction (each dies with
-    probability `extinction`) and scored finite, into `fresh`; returns it and how many valid
-    ones were non-finite."""
+    probability `extinction`) and scored finite, into `fresh`; returns it, how many valid
+    ones were non-finite, and how many died (non-finite or by extinction: never inserted)."""
     survives = jax.random.uniform(death_key, jnp.shape(valid)) >= extinction
     fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
-    fitnesses = jnp.where(valid & survives, fitnesses, -jnp.inf)
-    return fresh.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite)
+    inserted = valid & survives & finite
+    fitnesses = jnp.where(inserted, fitnesses, -jnp.inf)
+    return fresh.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite), jnp.sum(valid & ~inserted)
+
+
+def kept_in_place(before: MapElitesRepertoire, after: MapElitesRepertoire) -> jax.Array:
+    """How many cells hold after re-evaluation the elite they held before (the same genotype,
+    bit for bit: an elite's re-scored descriptor fell into its own cell and no better one
+    took it). Elites are told apart by their genotypes, which no two cells share."""
+    cells = before.fitnesses.shape[0]
+    same = ((before.fitnesses > -jnp.inf) & (after.fitnesses > -jnp.inf)).reshape(cells, -1).any(axis=1)
+    for old, new in zip(jax.tree.leaves(before.genotypes), jax.tree.leaves(after.genotypes), strict=True):
+        same &= jnp.all((old == new).reshape(cells, -1), axis=1)
+    return jnp.sum(same)
+
+
+@dataclass(frozen=True)
+class ReevaluationCounts:
+    """What one re-evaluation did to every run's archive (arrays with a value per run).
+
+    Every elite re-scored (`reevaluated`: the cells filled before) either `died` (scored
+    NaN or infinite, `non_finite` of them, or removed by extinction), was `kept` in its own
+    cell, `moved` to another cell, or `collided`: lost the cell its new descriptor fell in
+    to a better elite. The cells filled after are `kept + moved`."""
+
+    reevaluated: np.ndarray
+    non_finite: np.ndarray
+    died: np.ndarray
+    kept: np.ndarray
+    moved: np.ndarray
+    collided: np.ndarray
+
+    @classmethod
+    def of(
+        cls, reevaluated: np.ndarray, non_finite: np.ndarray, died: np.ndarray, kept: np.ndarray, filled: np.ndarray
+    ) -> ReevaluationCounts:
+        """The counts, from the elites re-scored, the non-finite and dead ones, the cells
+        that kept their elite and the cells filled after."""
+        survived = reevaluated - died
+        return cls(reevaluated, non_finite, died, kept, filled - kept, survived - filled)
+
+    @property
+    def filled(self) -> np.ndarray:
+        """The cells filled after the re-evaluation."""
+        return self.kept + self.moved
 
 
 def emptied(repertoire: MapElitesRepertoire) -> MapElitesRepertoire:
@@ -94,7 +138,6 @@ def emptied(repertoire: MapElitesRepertoire) -> MapElitesRepertoire:
     )
 
 
-@partial(jax.jit, static_argnames=("score",), donate_argnames=("fresh",))
 def _chunk(
     score: Score,
     source: Any,
@@ -104,11 +147,18 @@ def _chunk(
     body: jax.Array,
     extinction: jax.Array,
     key: jax.Array,
-) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
+) -> tuple[MapElitesRepertoire, jax.Array]:
     genotypes, key, score_key, death_key = pick_chunk(source, index, key)
     fitnesses, descriptors, _ = score(genotypes, score_key, body)
-    fresh, non_finite = insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
-    return fresh, key, non_finite
+    fresh, _, _ = insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
+    return fresh, key
+
+
+@cache
+def _chunk_program(options: tuple[tuple[str, str], ...]) -> Any:
+    """`_chunk` jitted with these compiler options (the scoring function's: its rollout is
+    compiled into the chunk's program)."""
+    return jax.jit(_chunk, static_argnames=("score",), donate_argnames=("fresh",), compiler_options=dict(options))
 
 
 def reevaluate(
@@ -134,6 +184,7 @@ def reevaluate(
     fresh = emptied(repertoire)
     body = jnp.asarray(body, jnp.float32)
     rate = jnp.asarray(extinction, jnp.float32)
+    chunk = _chunk_program(tuple(sorted((getattr(score, "compiler_options", None) or {}).items())))
     for index, valid in reevaluation_chunks([filled], batch_size):
-        fresh, key, _ = _chunk(score, repertoire.genotypes, fresh, index[0], valid[0], body, rate, key)
+        fresh, key = chunk(score, repertoire.genotypes, fresh, index[0], valid[0], body, rate, key)
     return fresh

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
@@ -153,7 +154,7 @@ def scoring_function(
     names = ", ".join(channel.name for channel in task.channels)
     size = len(task.channels)
 
-    @jax.jit
+    @partial(jax.jit, compiler_options=task.compiler_options())
     def rollouts(policies: Any, body: jax.Array) -> tuple[jax.Array, jax.Array, dict[str, Any]]:
         results = task.score(policies, body, start, transitions=transitions)
         fitnesses, descriptors, _ = drop_non_finite(*results[:2])
@@ -168,6 +169,7 @@ def scoring_function(
             )
         return rollouts(as_policies(task, genotypes), jnp.asarray(body, jnp.float32))
 
+    score.compiler_options = task.compiler_options()  # type: ignore[attr-defined]  # for `reevaluate`'s program
     return score
 
 

@@ -457,14 +457,7 @@ def results_figure(groups: Mapping[str, Sequence[RunRecord]], names: Sequence[st
     every schedule shown has its final body for good (alpha = 1, for plain gear)."""
     figure = Figure(figsize=(13, 3.8), layout="constrained")
     axes = figure.subplots(1, len(SCORES))
-    if len(names) <= LEGEND_INSIDE:  # the paper's colours for the paper's schedules
-        colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
-        styles = [
-            {"color": ORDER_COLORS.get(name, colors[(i + len(ORDER_COLORS)) % len(colors)])}
-            for i, name in enumerate(names)
-        ]
-    else:
-        styles = series_styles(len(names))
+    styles = schedule_styles(names)
     # where every schedule shown has its final body for good (the paper's fair-comparison line)
     final_from = max((x for name in names if (x := groups[name][0].final_body_evaluations()) is not None), default=None)
     for ax, metric in zip(axes, SCORES, strict=True):
@@ -482,6 +475,70 @@ def results_figure(groups: Mapping[str, Sequence[RunRecord]], names: Sequence[st
             ax.axvline(final_from, color="0.3", ls="--", lw=1.0)
         ax.set_xlabel("evaluations")
         ax.set_ylabel(METRICS_SCHEMA[metric].axis_label)
+        ax.grid(alpha=0.25)
+    place_legend(figure, axes[0], title="schedule (runs)", title_fontsize=8)
+    figure.suptitle(title)
+    return figure
+
+
+def schedule_styles(names: Sequence[str]) -> list[dict[str, Any]]:
+    """A line style per schedule: the paper's colours for the paper's schedules, matplotlib's
+    next ones for others; past LEGEND_INSIDE schedules, `series_styles`' colours and dashes."""
+    if len(names) > LEGEND_INSIDE:
+        return series_styles(len(names))
+    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
+    return [
+        {"color": ORDER_COLORS.get(name, colors[(i + len(ORDER_COLORS)) % len(colors)])} for i, name in enumerate(names)
+    ]
+
+
+REEVALUATION_PANELS = (
+    ("kept", "elites that kept their cell\n(% of the cells filled before)"),
+    ("filled", "cells filled after\n(% of the cells filled before)"),
+)
+
+
+def reevaluation_shares(run: RunRecord) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+    """A run's phase boundaries (the phase each starts) and, at each, the elites that kept
+    their cell and the cells filled after, in % of the cells filled before (NaN where none
+    was); None for a run whose metrics.csv does not count them (written before they were)."""
+    rows = [row for row in run.rows if row["event"] == "reevaluate"]
+    if not rows or rows[0]["reevaluated"] is None:
+        return None
+    before = np.asarray([row["reevaluated"] for row in rows], dtype=float)
+    before[before == 0] = np.nan
+    kept = np.asarray([row["kept"] for row in rows], dtype=float)
+    filled = kept + np.asarray([row["moved"] for row in rows], dtype=float)
+    phases = np.asarray([row["phase"] for row in rows])
+    return phases, {"kept": 100 * kept / before, "filled": 100 * filled / before}
+
+
+def reevaluation_figure(groups: Mapping[str, Sequence[RunRecord]], title: str) -> Figure | None:
+    """At every phase boundary, per schedule, the median and interquartile range over seeds
+    of the elites that kept their own cell and of the cells filled after the re-evaluation,
+    both in % of the cells filled before: how much of the archive a change of body keeps.
+    None when no run counts its re-evaluations (or has none: a single phase)."""
+    measured = {}
+    for name, runs in groups.items():
+        shares = [shares for run in runs if (shares := reevaluation_shares(run)) is not None]
+        if shares:
+            measured[name] = shares
+    if not measured:
+        return None
+    figure = Figure(figsize=(11, 3.8), layout="constrained")
+    axes = figure.subplots(1, len(REEVALUATION_PANELS))
+    for ax, (key, label) in zip(axes, REEVALUATION_PANELS, strict=True):
+        for (name, shares), style in zip(measured.items(), schedule_styles(list(measured)), strict=True):
+            values = np.stack([values[key] for _, values in shares])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a boundary where every archive was empty
+                low, median, high = np.nanpercentile(values, [25, 50, 75], axis=0)
+            phases = shares[0][0]
+            ax.plot(phases, median, lw=1.4, label=legend_label(f"{name} ({len(shares)})"), **style)
+            ax.fill_between(phases, low, high, color=style["color"], alpha=0.2, lw=0)
+        ax.set_xlabel("phase boundary (the phase it starts)")
+        ax.set_ylabel(label)
+        ax.set_ylim(-3, 103)
         ax.grid(alpha=0.25)
     place_legend(figure, axes[0], title="schedule (runs)", title_fontsize=8)
     figure.suptitle(title)

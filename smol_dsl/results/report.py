@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from smol_dsl.errors import UserInputError
-from smol_dsl.results.figures import archives_figure, results_figure
+from smol_dsl.results.figures import archives_figure, reevaluation_figure, results_figure
 from smol_dsl.results.paper import compare_with_paper
 from smol_dsl.rundir import (
     CONFIG_FILE,
@@ -60,7 +60,7 @@ SIGNIFICANCE = 0.05
 
 SEED_MODULUS = 2**32
 """JAX takes a seed modulo 2**32: seeds S and S + 2**32 give the same run."""
-FIGURE_STEMS = ("main-results", "ablation-results", "archives")
+FIGURE_STEMS = ("main-results", "ablation-results", "reevaluation", "archives")
 REPORT_FILES = (
     "table.md",
     "pvalues.tex",
@@ -527,6 +527,9 @@ def render_report(
         panels = [(name, run.seed, run.final_archive()) for name, run in chosen.items()]
         by = table.metric.replace("_", " ")
         figures["archives"] = archives_figure(panels, low, high, f"{table.task}: final archives (median run by {by})")
+    reevaluation = reevaluation_figure(groups, f"{table.task}: what each re-evaluation kept (median and IQR over seeds)")
+    if reevaluation is not None:  # runs that count their re-evaluations
+        figures["reevaluation"] = reevaluation
     for stem, figure in figures.items():
         for suffix in ("png", "pdf"):
             image = io.BytesIO()

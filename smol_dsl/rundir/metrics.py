@@ -58,6 +58,7 @@ class Column:
     choices: tuple[str, ...] = ()
     valid: Callable[[float], bool] = _finite
     expected: str = "a finite number"
+    only_on: str = ""  # the event whose rows it is measured on: empty on every other row, absent from older files
 
     def __post_init__(self) -> None:
         if self.type not in (int, float, str):
@@ -70,6 +71,11 @@ class Column:
     @property
     def values(self) -> str:
         """The values the column may take, in words."""
+        if self.only_on:
+            return f"{self._values()} on `{self.only_on}` rows, empty on the others"
+        return self._values()
+
+    def _values(self) -> str:
         if self.type is int:
             return "a whole number of 0 or more"
         if self.type is str:
@@ -77,11 +83,16 @@ class Column:
         return self.expected
 
     def convert(self, value: Any) -> Any:
-        """A value as the row writer writes it (a NumPy or JAX scalar becomes a Python one)."""
+        """A value as the row writer writes it (a NumPy or JAX scalar becomes a Python one;
+        None, not measured, stays None: an empty cell)."""
+        if value is None and self.only_on:
+            return None
         return self.type(value)
 
     def parse(self, text: str) -> Any:
         """The typed value of one CSV cell; a ValueError saying what is wrong ("is 'x', not ...")."""
+        if self.only_on and text == "":
+            return None
         shown = repr(text[:40])
         if self.type is str:
             if self.choices and text not in self.choices:
@@ -130,14 +141,26 @@ class MetricsSchema:
         return {column.name: column.convert(values[column.name]) for column in self.columns}
 
     def parse_row(self, texts: Mapping[str, str]) -> dict[str, Any]:
-        """A CSV row's cells typed; a ValueError naming the column ("alpha is 'x', not a number")."""
+        """A CSV row's cells typed; a ValueError naming the column ("alpha is 'x', not a number").
+        A column measured on some events only (`only_on`) may be absent: None, as if empty."""
         typed = {}
         for column in self.columns:
             try:
-                typed[column.name] = column.parse(texts[column.name])
+                typed[column.name] = column.parse(texts.get(column.name, ""))
             except ValueError as error:
                 raise ValueError(f"{column.name} {error}") from None
+            if typed[column.name] is not None and column.only_on and texts.get("event") != column.only_on:
+                raise ValueError(
+                    f"{column.name} is {texts[column.name]!r} on an {texts.get('event')} row: it is "
+                    f"measured on {column.only_on} rows only and empty on the others"
+                )
         return typed
+
+    @property
+    def required(self) -> tuple[str, ...]:
+        """The columns every metrics.csv has (those measured on some events only may be
+        absent from files written before they were)."""
+        return tuple(column.name for column in self.columns if not column.only_on)
 
     def csv_text(self, rows: Sequence[Mapping[str, Any]]) -> str:
         """The header and the rows, as metrics.csv holds them."""
@@ -153,6 +176,21 @@ class MetricsSchema:
         for column in self.columns:
             lines.append(f"| `{column.name}` | {column.type.__name__} | {column.meaning} | {column.values} |")
         return "\n".join(lines) + "\n"
+
+
+REEVALUATION = "reevaluate"
+REEVALUATION_COLUMNS = (
+    Column("reevaluated", int, "elites re-scored: the cells filled before the re-evaluation", only_on=REEVALUATION),
+    Column("kept", int, "elites that kept their own cell", only_on=REEVALUATION),
+    Column(
+        "moved", int, "elites that went to another cell (kept + moved: the cells filled after)", only_on=REEVALUATION
+    ),
+    Column("collided", int, "elites that lost the cell they fell in to a better elite", only_on=REEVALUATION),
+    Column("died", int, "elites removed by extinction or for a non-finite score", only_on=REEVALUATION),
+)
+"""What a re-evaluation did to the archive's elites: every one `reevaluated` was `kept`,
+`moved`, `collided` or `died`."""
+REEVALUATION_FIELDS = tuple(column.name for column in REEVALUATION_COLUMNS)
 
 
 METRICS_SCHEMA = MetricsSchema(
@@ -180,6 +218,7 @@ METRICS_SCHEMA = MetricsSchema(
         ),
         Column("qd_score", float, "QD score, with QDax's offset per filled cell", label="QD score"),
         Column("non_finite", int, "results of this row's evaluations dropped for a non-finite fitness or descriptor"),
+        *REEVALUATION_COLUMNS,
     )
 )
 """metrics.csv's columns. `event` is `init` (generation 0's random population), `train` (a
@@ -339,7 +378,7 @@ def _read_header(
         raise RunDirectoryError(f"{path}: empty; the run wrote no metrics (it stopped at once); {rerun}")
     if schema is METRICS_SCHEMA:
         schema = schema_of_header(header)
-    missing = [name for name in schema.names if name not in header]
+    missing = [name for name in schema.required if name not in header]
     foreign = [name for name in header if name not in schema.names and _channel_of(name) is not None]
     if missing or foreign or len(set(header)) != len(header):
         if missing:
@@ -398,6 +437,7 @@ class _RowOrder:
         self.seen[key] = line
         if self.config is not None:
             _check_in_run(where, row, self.config, self.rerun)
+        _check_reevaluation(where, row, self.rerun)
         if self.previous is None:
             _check_first(where, row, self.rerun)
         else:
@@ -417,6 +457,23 @@ def _check_in_run(where: str, row: dict[str, Any], config: RunConfig, rerun: str
         raise RunDirectoryError(
             f"{where}: phase {row['phase']}, but {CONFIG_FILE} gives the run {config.num_phases} phases "
             f"(0 to {config.num_phases - 1}); the two files are from different runs: {rerun}"
+        )
+
+
+def _check_reevaluation(where: str, row: dict[str, Any], rerun: str) -> None:
+    """A reevaluate row's counts are all there or all empty (a file written before they were
+    measured), and account for every elite re-scored."""
+    counts = [row.get(name) for name in REEVALUATION_FIELDS]
+    if all(count is None for count in counts):
+        return
+    reevaluated, *outcomes = counts
+    if None in counts or sum(outcomes) != reevaluated:
+        shown = ", ".join(
+            f"{name} {'empty' if count is None else count}" for name, count in zip(REEVALUATION_FIELDS, counts)
+        )
+        raise RunDirectoryError(
+            f"{where}: {shown}: every elite re-scored is kept, moved, collided or died, so the four add up to "
+            f"reevaluated; {rerun}"
         )
 
 

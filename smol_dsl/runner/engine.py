@@ -33,7 +33,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from qdax.utils.metrics import default_qd_metrics
 
 from smol_dsl.language.channels import GEAR, Channel
-from smol_dsl.qdax.reevaluation import reevaluation_chunks
+from smol_dsl.qdax.reevaluation import ReevaluationCounts, kept_in_place, reevaluation_chunks
 from smol_dsl.runner.layout import default_runs_per_step, mesh_shape
 from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites
 from smol_dsl.tasks import make_task
@@ -83,6 +83,7 @@ class Engine:
         grid = np.asarray(self.devices).reshape(along_runs, self.population_devices)
         self.mesh = Mesh(grid, (RUNS, POPULATION))
         self.sharding = NamedSharding(self.mesh, PartitionSpec(RUNS))
+        self.options = task.compiler_options(self.devices[0].platform)  # faster on CPUs, the same results
         map_elites = make_map_elites(batch_size, task.qd_offset, iso_sigma, line_sigma)
         self.run_step = step = RunStep(map_elites, task.init_policies, self._score, batch_size)
         # a generation is ask, score, tell and a re-evaluation pick, score, insert: the same
@@ -93,6 +94,7 @@ class Engine:
         self._pick = self._over_runs(step.pick)
         self._insert = self._over_runs(step.insert, donate=(0,))
         self._metrics = self._over_runs(lambda archive: default_qd_metrics(archive, task.qd_offset))
+        self._kept = self._over_runs(kept_and_filled)
         template = task.init_policies(jax.random.key(0), 1)
         # made on the devices, each its own runs' share: no host-side or stacked copy
         self._empty = self._over_runs(partial(empty_archive, template))
@@ -148,7 +150,7 @@ class Engine:
         sharded = jax.shard_map(local, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
         # every result split along the runs axis as the arguments are, so that a program's
         # results, given to the next one, never make it compile a variant for other shardings
-        return jax.jit(sharded, donate_argnums=donate, out_shardings=self.sharding)
+        return jax.jit(sharded, donate_argnums=donate, out_shardings=self.sharding, compiler_options=self.options)
 
     def _score(self, genotypes: Any, body: jax.Array, start: Any, poses: bool = False) -> tuple[jax.Array, ...]:
         """Score one run's batch in its body; along the population axis each device rolls out
@@ -192,22 +194,26 @@ class Engine:
         starts: Any,
         extinctions: jax.Array,
         keys: jax.Array,
-    ) -> tuple[MapElitesRepertoire, np.ndarray, np.ndarray]:
+    ) -> tuple[MapElitesRepertoire, ReevaluationCounts]:
         """Every run's elites re-scored in its new body, thinned by its extinction, in fresh
         archives. Chunks run over the filled cells only (up to the fullest archive).
-        Returns the archives, and per run the elites re-evaluated and the non-finite ones."""
+        Returns the archives, and per run what became of its elites (`ReevaluationCounts`)."""
         filled_mask = np.asarray(repertoires.fitnesses) > -np.inf
-        filled = [np.flatnonzero(row) for row in filled_mask]
+        filled = [np.flatnonzero(row) for row in filled_mask.reshape(len(filled_mask), -1)]
         fresh = self.empty_archives(repertoires.centroids)
         non_finite = np.zeros(len(filled), dtype=np.int64)
+        died = np.zeros(len(filled), dtype=np.int64)
         for index, valid in reevaluation_chunks(filled, self.batch_size):
             genotypes, keys, death_keys = self._pick(repertoires.genotypes, self.put(jnp.asarray(index)), keys)
             fitnesses, descriptors = self._scores(genotypes, bodies, starts)
-            fresh, dropped = self._insert(
+            fresh, dropped, dead = self._insert(
                 fresh, genotypes, fitnesses, descriptors, self.put(jnp.asarray(valid)), extinctions, death_keys
             )
             non_finite += np.asarray(dropped)
-        return fresh, np.asarray([len(f) for f in filled]), non_finite
+            died += np.asarray(dead)
+        kept, after = jax.device_get(self._kept(repertoires, fresh))
+        before = np.asarray([len(cells) for cells in filled], dtype=np.int64)
+        return fresh, ReevaluationCounts.of(before, non_finite, died, np.asarray(kept), np.asarray(after))
 
     def score(self, genotypes: Any, bodies: jax.Array, starts: Any) -> tuple[np.ndarray, np.ndarray]:
         """Every run's batch (R, batch_size, ...) scored in its body by the training's own
@@ -278,6 +284,13 @@ def shared_engine(
         runs_per_step,
         num_runs,
         tuple(channels),
+    )
+
+
+def kept_and_filled(before: MapElitesRepertoire, after: MapElitesRepertoire) -> tuple[jax.Array, jax.Array]:
+    """A run's cells that kept their elite through a re-evaluation, and its cells filled after."""
+    return kept_in_place(before, after), jnp.sum(
+        jnp.any((after.fitnesses > -jnp.inf).reshape(len(after.fitnesses), -1), axis=1)
     )
 
 

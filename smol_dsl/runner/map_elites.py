@@ -151,9 +151,10 @@ class RunStep:
         valid: jax.Array,
         extinction: jax.Array,
         death_key: jax.Array,
-    ) -> tuple[MapElitesRepertoire, jax.Array]:
+    ) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
         """Re-scored elites that are `valid` (not padding), survive extinction and scored
-        finite, into `fresh`; returns it and how many valid ones were non-finite."""
+        finite, into `fresh`; returns it, how many valid ones were non-finite and how many
+        died (non-finite or by extinction)."""
         return insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
 
 

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 from typing import TYPE_CHECKING, Any
 
 from smol_dsl.rundir import ALPHA, METRIC_FIELDS
+from smol_dsl.rundir.metrics import REEVALUATION
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
@@ -16,9 +18,11 @@ if TYPE_CHECKING:
 
 class ProgressBar:
     """A tqdm bar over generations. For one run it shows the phase, alpha and every other
-    scheduled channel's factor, coverage, max fitness and evals/s; for a sweep (`update`
-    given every run's row) the phase, the best max fitness and the median coverage over
-    runs, and evals/s over all runs."""
+    scheduled channel's factor, coverage, max fitness, what the phase's re-evaluation kept
+    and evals/s; for a sweep (`update` given every run's row) the phase, the best max
+    fitness and the median coverage over runs, the median share of cells the re-evaluation
+    kept filled, and evals/s over all runs. A re-evaluation that left under half the cells
+    filled is written above the bar (`reevaluation_warning`)."""
 
     def __init__(self, config: RunConfig) -> None:
         from tqdm import tqdm
@@ -27,6 +31,7 @@ class ProgressBar:
         self._config = config
         self._started = time.perf_counter()
         self._first_evaluations: int | None = None
+        self._reevaluation = ""  # the current phase's re-evaluation, in a few words
 
     def update(self, rows: dict[str, Any] | list[dict[str, Any]], total: int) -> None:
         """Show the latest row of a run, or the latest rows of every run of a sweep."""
@@ -36,7 +41,12 @@ class ProgressBar:
             self._first_evaluations = evaluations
             self._started = time.perf_counter()
         row = rows[0]
-        if row["event"] != "reevaluate":
+        if row["event"] == REEVALUATION:
+            self._reevaluation = reevaluation_summary(rows)
+            warning = reevaluation_warning(rows, self._config.num_phases)
+            if warning is not None:
+                self._bar.write(warning, file=sys.stderr)
+        else:
             self._bar.n = row["generation"] + 1
         elapsed = max(time.perf_counter() - self._started, 1e-9)
         rate = (evaluations - self._first_evaluations) / elapsed
@@ -48,11 +58,75 @@ class ProgressBar:
             coverage = sorted(r["coverage"] for r in rows)[len(rows) // 2]
             best = max(r["max_fitness"] for r in rows)
             about = f"{len(rows)} runs, {phase} best max {best:.1f} median cov {coverage:.1f}%"
-        self._bar.set_postfix_str(f"{about} {rate:.0f} evals/s", refresh=False)
+        reevaluation = f" {self._reevaluation}" if self._reevaluation else ""
+        self._bar.set_postfix_str(f"{about}{reevaluation} {rate:.0f} evals/s", refresh=False)
         self._bar.refresh()
 
     def close(self) -> None:
         self._bar.close()
+
+
+class ReevaluationWarnings:
+    """A progress callback that shows nothing but `reevaluation_warning`s (on stderr): what
+    a run without a progress bar still says."""
+
+    def __init__(self, config: RunConfig) -> None:
+        self._phases = config.num_phases
+
+    def update(self, rows: dict[str, Any] | list[dict[str, Any]], total: int) -> None:
+        rows = [rows] if isinstance(rows, dict) else rows
+        warning = reevaluation_warning(rows, self._phases) if rows[0]["event"] == REEVALUATION else None
+        if warning is not None:
+            print(warning, file=sys.stderr, flush=True)
+
+
+LOW_KEPT = 0.5
+"""A re-evaluation that leaves fewer than this share of the cells filled is reported."""
+
+
+def _measured(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows that count a re-evaluation of some elites."""
+    return [row for row in rows if row.get("reevaluated")]
+
+
+def reevaluation_summary(rows: list[dict[str, Any]]) -> str:
+    """A re-evaluation in a few words: for one run what became of its elites, for several
+    the median share of cells left filled."""
+    measured = _measured(rows)
+    if not measured:
+        return ""
+    if len(rows) == 1:
+        row = measured[0]
+        return (
+            f"reeval {row['reevaluated']}: kept {row['kept']} moved {row['moved']} "
+            f"collided {row['collided']} died {row['died']}"
+        )
+    shares = sorted((row["kept"] + row["moved"]) / row["reevaluated"] for row in measured)
+    return f"reeval median {shares[len(shares) // 2]:.0%} of cells kept"
+
+
+def reevaluation_warning(rows: list[dict[str, Any]], num_phases: int) -> str | None:
+    """One line when a phase boundary's re-evaluation left under half of a run's cells
+    filled (its elites' new descriptors fell into fewer cells, or they died), None
+    otherwise."""
+    low = [row for row in _measured(rows) if row["kept"] + row["moved"] < LOW_KEPT * row["reevaluated"]]
+    if not low:
+        return None
+    phase = f"phase {low[0]['phase'] + 1}/{num_phases}"
+    if len(rows) == 1:
+        row = low[0]
+        return (
+            f"{phase}: re-evaluating the archive in the new body left {row['kept'] + row['moved']} of its "
+            f"{row['reevaluated']} cells filled ({row['kept']} elites kept their cell, {row['moved']} moved, "
+            f"{row['collided']} lost their new cell to a better elite, {row['died']} died): the new body "
+            "sends elites to fewer cells; metrics.csv counts every re-evaluation"
+        )
+    worst = min(low, key=lambda row: (row["kept"] + row["moved"]) / row["reevaluated"])
+    return (
+        f"{phase}: re-evaluation left under half the cells filled in {len(low)} of {len(rows)} runs "
+        f"(fewest: {worst['kept'] + worst['moved']} of {worst['reevaluated']}; {worst['collided']} collided, "
+        f"{worst['died']} died); each run's metrics.csv counts them"
+    )
 
 
 def channel_columns(row: dict[str, Any]) -> list[str]:

@@ -128,9 +128,12 @@ def metrics_row(
     event: str,
     non_finite: int,
     schema: rundir.MetricsSchema = rundir.METRICS_SCHEMA,
+    reevaluation: dict[str, int] | None = None,
 ) -> dict[str, Any]:
     """The metrics.csv row of a run's state after an event; `body` holds the body's columns
-    (`rundir.body_columns`: `alpha`, and a factor per other channel of the run's schedule)."""
+    (`rundir.body_columns`: `alpha`, and a factor per other channel of the run's schedule),
+    `reevaluation` a re-evaluation's counts (`rundir.REEVALUATION_FIELDS`; empty otherwise)."""
+    counts = reevaluation or dict.fromkeys(rundir.REEVALUATION_FIELDS)
     return rundir.metrics_row(
         schema,
         generation=state.generation,
@@ -143,6 +146,7 @@ def metrics_row(
         max_fitness=metrics["max_fitness"],
         qd_score=metrics["qd_score"],
         non_finite=non_finite,
+        **counts,
     )
 
 
@@ -306,16 +310,20 @@ class Training:
         self._phase_non_finite[:] = 0
 
     def reevaluate(self, phase: int) -> None:
-        """Every archive re-scored in its run's body of `phase`, thinned by extinction."""
+        """Every archive re-scored in its run's body of `phase`, thinned by extinction; its
+        row counts what became of the elites."""
         self.keys, subkeys = self.engine.split(self.keys)
-        self.repertoires, evaluated, dropped = self.engine.reevaluate(
+        self.repertoires, counts = self.engine.reevaluate(
             self.repertoires, self._bodies_of(phase), self.starts, self.extinctions, subkeys
         )
         for r, state in enumerate(self.states):
             state.phase = phase
-            state.reevaluations += int(evaluated[r])
-            state.non_finite += int(dropped[r])
-        self._record(self.engine.metrics(self.repertoires), ["reevaluate"] * len(self.runs), dropped)
+            state.reevaluations += int(counts.reevaluated[r])
+            state.non_finite += int(counts.non_finite[r])
+        per_run = [
+            {name: int(getattr(counts, name)[r]) for name in rundir.REEVALUATION_FIELDS} for r in range(len(self.runs))
+        ]
+        self._record(self.engine.metrics(self.repertoires), ["reevaluate"] * len(self.runs), counts.non_finite, per_run)
 
     def generation(self, generation: int, phase: int) -> None:
         """One generation of every run in its body of `phase`."""
@@ -342,10 +350,17 @@ class Training:
         """A run's metrics.csv body columns in a phase (its schedule's channels)."""
         return rundir.body_columns(self.runs[run].schedule.channels, self._own_bodies[run][phase])
 
-    def _record(self, metrics: dict[str, np.ndarray], events: list[str], dropped: np.ndarray) -> None:
+    def _record(
+        self,
+        metrics: dict[str, np.ndarray],
+        events: list[str],
+        dropped: np.ndarray,
+        reevaluations: list[dict[str, int]] | None = None,
+    ) -> None:
         for r, (state, log) in enumerate(zip(self.states, self.logs, strict=True)):
             columns = self._columns(r, state.phase)
-            row = metrics_row(state, _run_metrics(metrics, r), columns, events[r], dropped[r], self.schemas[r])
+            counts = reevaluations[r] if reevaluations is not None else None
+            row = metrics_row(state, _run_metrics(metrics, r), columns, events[r], dropped[r], self.schemas[r], counts)
             state.rows.append(row)
             log.append(row)
         self._show()

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.tasks.body import Modulate, Modulation, check_channels, modulation
+from smol_dsl.tasks.compiling import compiler_options
 from smol_dsl.tasks.quiet import import_brax
 
 import_brax()  # before Brax's modules, so that MJX's Warp lines are not printed (see quiet.py)
@@ -212,7 +213,12 @@ class Task:
 
     @functools.cached_property
     def _scoring_fn(self) -> ScoringFn:
-        return jax.jit(self.score)
+        return jax.jit(self.score, compiler_options=self.compiler_options())
+
+    def compiler_options(self, platform: str | None = None) -> dict[str, str] | None:
+        """The XLA options its programs compile with on `platform` (default: JAX's default
+        backend): faster on CPUs, the same results bit for bit (`tasks.compiling`)."""
+        return compiler_options(self.name, platform or jax.default_backend())
 
 
 def _transition(
