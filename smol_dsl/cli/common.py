@@ -87,8 +87,16 @@ def add_run_options(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--dry-run",
         action="store_true",
-        help="print what the run would need (memory, checkpoint size, evaluations/s for a time budget), "
-        "by arithmetic, and exit without running",
+        help="print what the run would need (memory, checkpoint size, evaluations/s for a time budget) by "
+        "arithmetic; then build and compile its engine, time an untimed and up to 3 timed generations of every "
+        "run at once and a re-evaluation chunk, and print the measured throughput, the compile time and the "
+        "estimated wall time; exit without running or writing anything (it takes the compile and a few "
+        "generations)",
+    )
+    command.add_argument(
+        "--no-measure",
+        action="store_true",
+        help="with --dry-run: print the arithmetic only, without compiling or timing anything (seconds)",
     )
 
 

@@ -186,6 +186,15 @@ class TrainingCommand(ABC):
         print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
         footprint = _announce_footprint(plan, self.command)
         if args.dry_run:
+            if not args.no_measure:  # the warm-up: compiles and times the sweep's own engine, writes nothing
+                from smol_dsl.runner.estimate import describe_estimate, measure_sweep, warmup_note
+
+                runs_per_step = footprint.runs_per_step if plan.runs_per_step == -1 else plan.runs_per_step
+                print(f"smol-dsl {self.command}: {warmup_note(footprint.runs)}", file=sys.stderr)
+                measured = measure_sweep(config, schedules, plan.seeds, plan.devices, runs_per_step, part)
+                print(f"smol-dsl {self.command}: measured on this machine:", file=sys.stderr)
+                for line in describe_estimate(config, measured, footprint.memory.label).splitlines():
+                    print(f"  {line}", file=sys.stderr)
             return EXIT_OK
         note = self.note(config)
         if note:
@@ -373,6 +382,8 @@ def _announce_footprint(plan: Plan, command: str) -> Footprint:
     paper preset or anything large; before anything compiles."""
     from smol_dsl.runner.footprint import fit_sweep
 
+    if plan.args.no_measure and not plan.args.dry_run:
+        raise UsageError("--no-measure goes with --dry-run: it leaves out the dry run's measured warm-up")
     config = plan.config
     footprint = fit_sweep(config, len(plan.schedules), plan.seeds, plan.devices, plan.runs_per_step, plan.part)
     if plan.args.dry_run or config.preset == "paper" or footprint.device_bytes > LARGE_BYTES:
