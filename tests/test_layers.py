@@ -61,9 +61,22 @@ def test_the_check_sees_an_import_against_the_layers(tmp_path):
     sample.write_text(
         "from __future__ import annotations\nfrom typing import TYPE_CHECKING\nimport smol_dsl.runner.engine\n"
         "from smol_dsl import results\nif TYPE_CHECKING:\n    from smol_dsl.cli import main\n"
+        "def lazily():\n    from smol_dsl.runner.layout import default_runs_per_step\n"
     )
     assert [name for _, name in imported_modules(sample)] == [
         "smol_dsl.runner.engine",
         "smol_dsl.results",
         "smol_dsl.cli",
+        "smol_dsl.runner.layout",
     ]
+
+
+def test_the_presets_have_one_definition_below_the_runner_and_the_results():
+    """The run directory's presets are the very objects the runner's public names give."""
+    import smol_dsl.rundir.presets
+    import smol_dsl.runner
+    import smol_dsl.runner.config
+
+    for module in (smol_dsl.runner, smol_dsl.runner.config):
+        assert module.preset_config is smol_dsl.rundir.presets.preset_config
+        assert module.PRESETS is smol_dsl.rundir.presets.PRESETS

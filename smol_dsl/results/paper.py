@@ -27,6 +27,8 @@ from functools import cache
 from importlib import resources
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.rundir.presets import preset_config
+
 if TYPE_CHECKING:
     from smol_dsl.results.report import PValueTable
     from smol_dsl.rundir import RunRecord
@@ -193,8 +195,6 @@ class Comparison:
 def settings_deviations(runs: list[RunRecord]) -> list[str]:
     """How the runs' settings differ from the paper's experiment (`--preset paper` and 10
     seeds per condition); empty for a run of the paper's settings."""
-    from smol_dsl.runner.config import preset_config
-
     config = runs[0].config
     paper = dataclasses.asdict(preset_config(config.task, "paper"))
     ours = dataclasses.asdict(config)

@@ -9,6 +9,7 @@ Modules, one concept each:
   `RunDirectoryError`;
 - `files`: atomic writes (`atomic_write`, `write_text`, `write_npz`) and `read_text`;
 - `config`: `RunConfig`, config.json, and its checked reader `read_config`;
+- `presets`: a run's settings by name (`PRESETS`: `paper`, `quick`), `preset_config`;
 - `metrics`: metrics.csv's columns (`METRICS_SCHEMA`, one `Column` per column; a run's body
   is one column per channel: `column_name`, `metrics_schema(channels)`, `scheduled_columns`,
   and a row's values `body_columns`), `MetricsLog` and the checked reader `read_metrics`;
@@ -96,6 +97,7 @@ from smol_dsl.rundir.metrics import (
     scheduled_columns,
     schema_of_header,
 )
+from smol_dsl.rundir.presets import PRESETS, preset_config
 from smol_dsl.rundir.record import RunRecord, read_run, write_run_files
 
 __all__ = [
@@ -116,6 +118,7 @@ __all__ = [
     "METRICS_FILE",
     "METRICS_SCHEMA",
     "METRIC_FIELDS",
+    "PRESETS",
     "REEVALUATION_FIELDS",
     "RUN_MARKERS",
     "SCHEDULE_FILE",
@@ -147,6 +150,7 @@ __all__ = [
     "load_archive",
     "metrics_row",
     "metrics_schema",
+    "preset_config",
     "read_certificate",
     "read_config",
     "read_environment",

@@ -1,12 +1,13 @@
 """The bundled Brax MAP-Elites runner: phased training while a schedule changes the body.
 
-Modules, one concept each: `config` (presets and the checks of a run's settings; no JAX),
+Modules, one concept each: `config` (the checks of a run's settings; no JAX),
 `map_elites` (one run's step on QDax), `layout` (runs and populations on devices; no JAX),
 `engine` (that step over runs and devices), `training` (the phase loop, metrics,
 checkpoints, resume), `run` and `sweep` (the two entry points), `directories` (setting up,
 locking and checking run and sweep directories), `checkpoint`, `lock`, `footprint`
 (memory), `progress` (the bar). A run directory's files are `smol_dsl.rundir`'s (RunConfig
-included); figures are drawn from them after training (`smol_dsl.results.figures`).
+and the presets included); figures are drawn from them after training
+(`smol_dsl.results.figures`).
 Importing this package imports JAX only when an entry point is used.
 """
 
@@ -16,7 +17,8 @@ from importlib import import_module
 from typing import Any
 
 from smol_dsl.rundir.config import RunConfig
-from smol_dsl.runner.config import PRESETS, RunError, check_config, preset_config
+from smol_dsl.rundir.presets import PRESETS, preset_config
+from smol_dsl.runner.config import RunError, check_config
 
 _LAZY = {
     "Archive": "smol_dsl.rundir",

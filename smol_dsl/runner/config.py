@@ -1,17 +1,21 @@
-"""A run's settings: the paper's preset, a `quick` one sized for a 2-core CPU, and the checks
-that refuse settings which cannot make a fair run. (`RunConfig` itself is the run directory's:
-`smol_dsl.rundir.config`.) Imports neither JAX nor Brax."""
+"""The checks of a run's settings (`check_config`: settings that cannot make a fair run are
+refused before anything starts) and the runner's errors. `RunConfig` and the presets are the
+run directory's (`smol_dsl.rundir.config`, `smol_dsl.rundir.presets`); `preset_config` and
+`PRESETS` are importable from here as well. Imports neither JAX nor Brax."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from smol_dsl.errors import Setting, UserInputError
-from smol_dsl.rundir.config import RunConfig
-from smol_dsl.tasks import PRESET_NAMES, task_spec
+from smol_dsl.rundir.presets import PRESETS, preset_config
+from smol_dsl.tasks import task_spec
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
+    from smol_dsl.rundir.config import RunConfig
+
+__all__ = ["LEAST_SETTINGS", "PRESETS", "ConfigError", "RunError", "check_config", "preset_config"]
 
 
 class RunError(UserInputError):
@@ -27,26 +31,6 @@ class ConfigError(RunError, ValueError):
 
 LEAST_SETTINGS = {"evaluations": 1, "batch_size": 1, "num_phases": 1, "num_centroids": 2, "episode_length": 1}
 """The smallest value of each count a run can use."""
-
-
-# The paper (Table "Hyperparameters for each task"): 1e7 evaluations, 100 phases, 1024 CVT
-# centroids, iso+line variation; per task, the batch, episode and network sizes of its spec.
-PAPER_COMMON = dict(evaluations=10_000_000, num_phases=100, num_centroids=1024)
-# Sized for a 2-core CPU; per task, the batch, episode, network and budget of its quick preset.
-QUICK_COMMON = dict(num_phases=20, num_centroids=256)
-COMMON = {"paper": PAPER_COMMON, "quick": QUICK_COMMON}
-
-PRESETS = PRESET_NAMES
-
-
-def preset_config(task: str, preset: str = "quick", **overrides: Any) -> RunConfig:
-    """The preset's settings for a task, with any field overridden (None means keep)."""
-    spec = task_spec(task)  # a ValueError listing the tasks for an unknown one
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; the presets are {', '.join(PRESETS)}")
-    values: dict[str, Any] = {**COMMON[preset], **spec.presets[preset]}
-    values.update({k: v for k, v in overrides.items() if v is not None})
-    return RunConfig(task=task, preset=preset, **values)
 
 
 def check_config(config: RunConfig, schedule: Schedule) -> None:
