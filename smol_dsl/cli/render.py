@@ -72,6 +72,7 @@ def render_run(args: argparse.Namespace) -> int:
     use_cpu_cores_as_devices()  # the devices the run trained on: its scoring program, bit for bit
     from smol_dsl.results import gaits
     from smol_dsl.rundir import RunDirectoryError, is_run_directory, load_archive, read_run
+    from smol_dsl.runner.replay import replay_elites
 
     directory = Path(args.run_dir)
     if not directory.is_dir():
@@ -98,7 +99,7 @@ def render_run(args: argparse.Namespace) -> int:
     cells = _cells(args, archive, directory)
     bodies = gaits.resolve_bodies(args.body or ["final"], run)
     started = time.perf_counter()
-    rendered = gaits.render_gaits(run, archive, cells, bodies, steps=args.steps, size=args.size)
+    rendered = gaits.render_gaits(run, archive, cells, bodies, replay=replay_elites, steps=args.steps, size=args.size)
     title = f"{run.task} under {run.schedule}, seed {run.seed}"
     gaits.write_gaits(out, rendered, title)
     seconds = time.perf_counter() - started

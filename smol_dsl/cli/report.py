@@ -73,16 +73,20 @@ def write_report(args: argparse.Namespace) -> int:
         raise UsageError("-o: empty path; give the directory the report goes into (or leave -o out for DIR/report)")
     out = Path(args.out) if args.out is not None else Path(args.dirs[0]) / "report"
     gaits = 0 if args.no_gaits else args.gaits
+    replay = None
     if gaits:
         from smol_dsl.cli.run import use_cpu_cores_as_devices
+        from smol_dsl.runner.replay import replay_elites
 
         use_cpu_cores_as_devices()  # as the runs trained: their scoring programs (see `smol-dsl render`)
+        replay = replay_elites
     report = results_report.write_report(
         args.dirs,
         out,
         args.metric,
         force=args.force,
         gaits=gaits,
+        replay=replay,
         allow_mixed_environments=args.allow_mixed_environments,
     )
     table = report.table

@@ -1,8 +1,9 @@
 """Gaits: an archive's elites rolled out in a body and drawn by MuJoCo's renderer.
 
-`render_gaits(run_dir, cells, bodies)` replays elites of a finished run with the runner's own
-rollout (`Task.rollout`, the run's episode start, a body of its schedule) and draws the poses
-with `mujoco.Renderer` through the model's tracking camera; `write_gaits` writes them as a
+`render_gaits(run, archive, cells, bodies, replay=...)` draws elites of a finished run as
+`replay` rolls them out (`smol_dsl.runner.replay.replay_elites`, which the caller hands down:
+the runner's own rollout, the run's episode start, a body of its schedule), with
+`mujoco.Renderer` through the model's tracking camera; `write_gaits` writes them as a
 GIF (Pillow), an MP4 (imageio's bundled ffmpeg, the `video` extra) or one self-contained web
 page (the GIF embedded, no script or style from the network). Several elites, or one elite in
 several bodies, play side by side, each tile labelled with its cell, body and fitness.
@@ -16,7 +17,6 @@ gaits play in real time. Without a display the GL backend is chosen before MuJoC
 from __future__ import annotations
 
 import base64
-import dataclasses
 import html
 import io
 import math
@@ -26,7 +26,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -51,6 +51,25 @@ _PROBE = (
 
 class RenderError(UserInputError):
     """A gait that cannot be rendered: a bad cell or body, a run without an archive, no GL."""
+
+
+class ReplayElites(Protocol):
+    """How `render_gaits` has elites rolled out: `smol_dsl.runner.replay.replay_elites`,
+    handed down by the caller, since rolling out needs the runner's engine. It returns `model`
+    (the task's MuJoCo model), `dt` (seconds per environment step) and, by (cell, body label),
+    `rollouts`: each with `fitness`, `descriptor`, `poses` (the episode start's positions, then
+    every step's until the episode ends) and `scored` (the poses' rollout reached the scored
+    fitness, bit for bit)."""
+
+    def __call__(
+        self,
+        run: RunRecord,
+        archive: Archive,
+        cells: Sequence[int],
+        bodies: Sequence[tuple[str, dict[str, float]]],
+        *,
+        steps: int | None = None,
+    ) -> Any: ...
 
 
 @dataclass(frozen=True)
@@ -213,81 +232,51 @@ def render_gaits(
     cells: Sequence[int],
     bodies: Sequence[tuple[str, dict[str, float]]],
     *,
+    replay: ReplayElites,
     steps: int | None = None,
     size: tuple[int, int] = (320, 240),
 ) -> list[Gait]:
     """Every cell in every body (cells × bodies), drawn `size` (width, height) pixels.
 
-    The fitness and descriptor are the training's own scoring program's (the run's engine:
-    the same batch size, devices and episode start), so in the body the archive was scored in
-    they are the archive's, bit for bit, on the device layout the run trained on. The frames
-    come from the same rollout on the same layout, recording positions; `steps` (default: the
-    run's episode length) renders a longer or shorter episode than the one scored."""
-    gl_backend()
-    import jax
-
-    from smol_dsl.language.channels import Channel
-    from smol_dsl.runner.engine import shared_engine, shared_task, stack_runs
-    from smol_dsl.runner.layout import default_runs_per_step
-
-    config = run.config
-    channels = tuple(Channel.parse(name) for name in bodies[0][1])
-    devices = tuple(jax.local_devices())
-
-    def engine_of(episode_length: int) -> Any:
-        task = shared_task(config.task, episode_length, tuple(config.hidden_layer_sizes))
-        shaped = dataclasses.replace(config, episode_length=episode_length)
-        return shared_engine(task, shaped, devices, default_runs_per_step(list(devices)), 1, channels)
-
-    scoring = engine_of(config.episode_length)
-    drawing = scoring if not steps or steps == config.episode_length else engine_of(steps)
-    episode_start = scoring.task.episode_start(config.seed)
-    start, start_pose = stack_runs([episode_start]), np.asarray(episode_start.pipeline_state.q)
-    batch = config.batch_size
-    results = {}
-    for label, body in bodies:
-        factors = np.asarray([list(body.values())], dtype=np.float32)
-        for first in range(0, len(cells), batch):
-            chunk = list(cells[first : first + batch])
-            padded = chunk + [chunk[0]] * (batch - len(chunk))
-            genotypes = jax.tree.map(lambda x, index=padded: np.asarray(x)[index][None], archive.genotypes)
-            fitnesses, descriptors = scoring.score(genotypes, factors, start)
-            replayed, _, q, valid = drawing.replay(genotypes, factors, start)
-            for k, cell in enumerate(chunk):
-                same = drawing is not scoring or bool(replayed[0, k] == fitnesses[0, k])
-                results[cell, label] = (fitnesses[0, k], descriptors[0, k], q[0, k][valid[0, k]], same)
-    stride = frame_stride(float(drawing.task.env.dt))
+    The fitness and descriptor are `replay`'s, the training's own scoring program's (the
+    run's engine: the same batch size, devices and episode start), so in the body the archive
+    was scored in they are the archive's, bit for bit, on the device layout the run trained
+    on. The frames come from the same rollout on the same layout, recording positions; `steps`
+    (default: the run's episode length) renders a longer or shorter episode than the one
+    scored."""
+    gl_backend()  # before the replay loads MuJoCo
+    replayed = replay(run, archive, cells, bodies, steps=steps)
+    stride = frame_stride(replayed.dt)
     gaits = []
-    with _Renderer(drawing.task, size) as draw:
+    with _Renderer(replayed.model, size) as draw:
         for cell in cells:
             for label, body in bodies:
-                fitness, descriptor, poses, same = results[cell, label]
-                shown = np.concatenate([start_pose[None], poses])  # until the episode ends
+                rollout = replayed.rollouts[cell, label]
                 gaits.append(
                     Gait(
                         cell=int(cell),
                         body_label=label,
                         body=body,
-                        fitness=float(fitness),
+                        fitness=rollout.fitness,
                         archive_fitness=float(archive.fitnesses[cell]),
-                        descriptor=np.asarray(descriptor),
-                        frames=[draw(pose) for pose in shown[::stride]],
-                        frame_ms=stride * float(drawing.task.env.dt) * 1000.0,
-                        frames_scored=same,
+                        descriptor=rollout.descriptor,
+                        frames=[draw(pose) for pose in rollout.poses[::stride]],
+                        frame_ms=stride * replayed.dt * 1000.0,
+                        frames_scored=rollout.scored,
                     )
                 )
     return gaits
 
 
 class _Renderer:
-    """MuJoCo's renderer of the task's model, through its tracking camera where it has one;
+    """MuJoCo's renderer of a task's model, through its tracking camera where it has one;
     called with a pose `q`, returns the image; closed on exit."""
 
-    def __init__(self, task: Any, size: tuple[int, int]) -> None:
+    def __init__(self, model: Any, size: tuple[int, int]) -> None:
         import mujoco
 
         self._mujoco = mujoco
-        self.model = task.env.sys.mj_model
+        self.model = model
         names = [self.model.camera(i).name for i in range(self.model.ncam)]
         self.camera = "track" if "track" in names else -1
         width, height = size

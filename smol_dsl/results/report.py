@@ -46,6 +46,7 @@ from smol_dsl.tasks import descriptor_bounds, task_spec
 from smol_dsl.tasks.anatomy import resolved_names, same_body
 
 if TYPE_CHECKING:
+    from smol_dsl.results.gaits import ReplayElites
     from smol_dsl.results.paper import Comparison
     from smol_dsl.tasks.anatomy import Anatomy
 
@@ -492,13 +493,18 @@ def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str
 
 
 def render_report(
-    groups: dict[str, list[RunRecord]], table: PValueTable, gaits: int = 0, comparison: Comparison | None = None
+    groups: dict[str, list[RunRecord]],
+    table: PValueTable,
+    gaits: int = 0,
+    comparison: Comparison | None = None,
+    replay: ReplayElites | None = None,
 ) -> dict[str, bytes]:
     """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv,
     paper-comparison.md and .tex (`comparison`: our p-values beside the paper's), the
     figures (PNG and PDF), with `gaits` > 0 a GIF of that many elites of each schedule's
-    median run (`gaits-*.gif`: the best, then spread over the archive), and index.html,
-    the page that shows them all and needs nothing but the files beside it."""
+    median run (`gaits-*.gif`: the best, then spread over the archive, rolled out by
+    `replay`), and index.html, the page that shows them all and needs nothing but the files
+    beside it."""
     files: dict[str, bytes] = {}
     label = METRICS_SCHEMA[table.metric].axis_label
     caption = (
@@ -535,24 +541,29 @@ def render_report(
             image = io.BytesIO()
             figure.savefig(image, format=suffix, dpi=130)
             files[f"{stem}.{suffix}"] = image.getvalue()
-    shown = gait_files(groups, table.metric, gaits) if gaits > 0 else []
+    shown = gait_files(groups, table.metric, gaits, replay) if gaits > 0 else []
     files.update({name: data for name, data, _ in shown})
     files["index.html"] = index_page(table, caption, [stem for stem in figures], shown)
     return files
 
 
-def gait_files(groups: dict[str, list[RunRecord]], metric: str, count: int) -> list[tuple[str, bytes, str]]:
-    """Per schedule, a GIF of `count` elites of its median run in the final body: (file name,
-    GIF, caption). Imports the renderer (JAX, Brax, MuJoCo) only when called."""
+def gait_files(
+    groups: dict[str, list[RunRecord]], metric: str, count: int, replay: ReplayElites | None
+) -> list[tuple[str, bytes, str]]:
+    """Per schedule, a GIF of `count` elites of its median run in the final body, rolled out
+    by `replay` (`smol_dsl.runner.replay.replay_elites`): (file name, GIF, caption). Imports
+    the renderer (MuJoCo) only when called."""
     from smol_dsl.results import gaits as rendering
     from smol_dsl.rundir import load_archive
 
+    if replay is None:
+        raise ValueError("rendering gaits needs `replay`: give replay=smol_dsl.runner.replay.replay_elites")
     shown = []
     for index, (name, runs) in enumerate(groups.items()):
         run = median_run(runs, metric)
         archive = load_archive(run.directory)
         cells = rendering.spread_cells(archive, count)
-        drawn = rendering.render_gaits(run, archive, cells, rendering.resolve_bodies(["final"], run))
+        drawn = rendering.render_gaits(run, archive, cells, rendering.resolve_bodies(["final"], run), replay=replay)
         slug = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "schedule"
         described = "; ".join(f"cell {g.cell}: fitness {g.fitness:.2f}" for g in drawn)
         caption = f"{name}, median run (seed {run.seed}) by {metric.replace('_', ' ')}, final body: {described}"
@@ -638,11 +649,13 @@ def write_report(
     *,
     force: bool = False,
     gaits: int = 0,
+    replay: ReplayElites | None = None,
     allow_mixed_environments: bool = False,
 ) -> Report:
     """Table (table.md, pvalues.tex), final scores (scores.csv) and figures (PNG and PDF)
     of the runs below `paths`, with index.html showing them and (`gaits` > 0) that many elites
-    of each schedule's median run, written into out_dir.
+    of each schedule's median run (rolled out by `replay`, which gaits need:
+    `smol_dsl.runner.replay.replay_elites`), written into out_dir.
 
     Every run is read and checked, and every file drawn, before the first file is written;
     each file is written atomically. An out_dir that already holds a report is refused
@@ -652,6 +665,6 @@ def write_report(
     groups = load_runs(paths, allow_mixed_environments)
     table = pvalue_table(groups, metric)
     comparison = compare_with_paper(table, groups)
-    files = render_report(groups, table, gaits, comparison)
+    files = render_report(groups, table, gaits, comparison, replay)
     written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
     return Report(table, written, comparison)
