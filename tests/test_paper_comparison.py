@@ -3,6 +3,7 @@ what the comparison says when the runs are not the paper's."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -139,3 +140,35 @@ def test_reproduce_plans_the_paper_s_eight_conditions(tmp_path, capsys):
     assert not out.exists()
     code, err = cli(["reproduce", "hopper", "--dry-run"], capsys)
     assert code == 2 and "the paper ran walker2d, halfcheetah, ant_omni, not 'hopper'" in err
+
+
+@pytest.mark.parametrize("out", [None, "elsewhere"])
+def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, monkeypatch, out):
+    """The report reads the sweep's own output directory, --out's or the default."""
+    from smol_dsl.cli import main
+    from smol_dsl.cli import run as cli_run
+    from smol_dsl.results import report as results_report
+
+    swept, reported = [], []
+
+    def start(self, plan, footprint, progress):
+        swept.append(plan.out)
+        final = {"evaluations": plan.config.evaluations, "reevaluations": 0}
+        return [SimpleNamespace(seconds=1.0, final=final, config=plan.config)]
+
+    def write_report(paths, out_dir, **options):
+        reported.append((paths, out_dir))
+        table = SimpleNamespace(task="walker2d", metric="max_fitness", markdown=lambda: "(the table)")
+        return SimpleNamespace(table=table, comparison=None)
+
+    monkeypatch.setattr(cli_run.Sweep, "start", start)
+    monkeypatch.setattr(cli_run, "_draw_figures", lambda results: None)
+    monkeypatch.setattr(results_report, "write_report", write_report)
+    monkeypatch.chdir(tmp_path)
+    where = [] if out is None else ["--out", out]
+    assert main(["reproduce", "walker2d", "--seeds", "1", "--evals", "2688", "--no-progress", *where]) == 0
+    printed = capsys.readouterr().out
+    expected = Path(out) if out is not None else Path("runs") / "walker2d-reproduce"
+    assert swept == [expected] and reported == [([expected], expected / "report")]
+    assert printed.splitlines()[0].startswith("done: 1 runs of walker2d") and "(the table)" in printed
+    assert f"report: {expected / 'report'}" in printed

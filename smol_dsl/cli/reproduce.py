@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from smol_dsl.cli import common
-from smol_dsl.cli.common import EXIT_OK, UsageError
-from smol_dsl.cli.run import Sweep, add_sweep_options, sweep_part, use_cpu_cores_as_devices
+from smol_dsl.cli.common import UsageError
+from smol_dsl.cli.run import Sweep, add_sweep_options, use_cpu_cores_as_devices
 
 if TYPE_CHECKING:
     from smol_dsl.cli.run import Plan
@@ -68,26 +68,29 @@ class Reproduce(Sweep):
             use_cpu_cores_as_devices()  # before JAX starts: the devices a sweep here would use
             args.preset = "quick" if common.devices(args)[0].platform == "cpu" else "paper"
         args.schedules = list(PAPER_CONDITIONS)
-        code = super().train(args)
-        if code != EXIT_OK or args.dry_run or sweep_part(args) != (0, 1):
-            return code  # a process sharing a sweep leaves the report to `smol-dsl report`
-        return self.report(args)
+        return super().train(args)  # the report is written when the sweep has ended (`summary`)
 
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
         return Path("runs") / f"{args.task}-reproduce"
 
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
+        """The sweep's first line, then the report of the sweep in OUT/report; a process
+        sharing a sweep leaves the report to `smol-dsl report`."""
         from smol_dsl.runner.progress import sweep_summary
 
-        return sweep_summary(results, plan.out).split("\n")[0]  # the report comes next, here
+        done = sweep_summary(results, plan.out).split("\n")[0]
+        if plan.part != (0, 1):
+            return done
+        print(done)  # before the report, which may fail
+        return self.report(plan.out)
 
-    def report(self, args: argparse.Namespace) -> int:
+    def report(self, out: Path) -> str:
+        """Write the report of the sweep in `out` into out/report; what to print of it."""
         from smol_dsl.results import report as results_report
 
-        out = Path(args.out) if args.out is not None else Path("runs") / f"{args.task}-reproduce"
         written = results_report.write_report([out], out / "report", force=True)
-        print(f"{written.table.task}, final {written.table.metric}:\n\n{written.table.markdown()}")
+        lines = [f"{written.table.task}, final {written.table.metric}:\n\n{written.table.markdown()}"]
         if written.comparison is not None:
-            print(written.comparison.summary())
-        print(f"report: {out / 'report'} (paper-comparison.md: our p-values beside the paper's)")
-        return EXIT_OK
+            lines.append(written.comparison.summary())
+        lines.append(f"report: {out / 'report'} (paper-comparison.md: our p-values beside the paper's)")
+        return "\n".join(lines)
