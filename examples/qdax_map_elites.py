@@ -72,8 +72,13 @@ def main(
     def map_elites(body: jax.Array) -> MAPElites:
         return MAPElites(partial(score, body=body), emitter, metrics_function)
 
-    init = jax.jit(lambda genotypes, centroids, key, body: map_elites(body).init(genotypes, centroids, key))
-    update = jax.jit(lambda repertoire, state, key, body: map_elites(body).update(repertoire, state, key))
+    fast = smol.compiler_options(task)  # XLA's options for the rollouts on CPUs (the same results)
+    init = jax.jit(
+        lambda genotypes, centroids, key, body: map_elites(body).init(genotypes, centroids, key), compiler_options=fast
+    )
+    update = jax.jit(
+        lambda repertoire, state, key, body: map_elites(body).update(repertoire, state, key), compiler_options=fast
+    )
 
     repertoire, emitter_state, metrics = init(start.genotypes, start.centroids, start.init_key, bodies[0])
     history = [{"generation": 0, "phase": 0, **{k: float(v) for k, v in metrics.items()}}]

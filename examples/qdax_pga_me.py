@@ -78,8 +78,13 @@ def main(
     def pga_me(body: jax.Array) -> MAPElites:
         return MAPElites(partial(score, body=body), emitter, metrics_function)
 
-    init = jax.jit(lambda genotypes, centroids, key, body: pga_me(body).init(genotypes, centroids, key))
-    update = jax.jit(lambda repertoire, state, key, body: pga_me(body).update(repertoire, state, key))
+    fast = smol.compiler_options(task)  # XLA's options for the rollouts on CPUs (the same results)
+    init = jax.jit(
+        lambda genotypes, centroids, key, body: pga_me(body).init(genotypes, centroids, key), compiler_options=fast
+    )
+    update = jax.jit(
+        lambda repertoire, state, key, body: pga_me(body).update(repertoire, state, key), compiler_options=fast
+    )
 
     def row(generation: int, phase: int, metrics: dict[str, jax.Array]) -> dict[str, Any]:
         body = dict(zip((c.name for c in schedule.channels), map(float, bodies[phase]), strict=True))

@@ -18,6 +18,7 @@ import pytest
 from small_runs import CONFIG, FLAGS, cli, small_config, small_task
 
 import smol_dsl
+from smol_dsl.rundir import REEVALUATION_FIELDS
 from smol_dsl.runner import (
     RunError,
     check_config,
@@ -27,7 +28,6 @@ from smol_dsl.runner import (
     schedule_key,
 )
 from smol_dsl.runner.engine import Engine, shared_engine, stack_runs
-from smol_dsl.rundir import REEVALUATION_FIELDS
 from smol_dsl.runner.map_elites import cvt_centroids
 
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from functools import partial
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
@@ -154,11 +153,14 @@ def scoring_function(
     names = ", ".join(channel.name for channel in task.channels)
     size = len(task.channels)
 
-    @partial(jax.jit, compiler_options=task.compiler_options())
     def rollouts(policies: Any, body: jax.Array) -> tuple[jax.Array, jax.Array, dict[str, Any]]:
         results = task.score(policies, body, start, transitions=transitions)
         fitnesses, descriptors, _ = drop_non_finite(*results[:2])
         return fitnesses, descriptors, ({"transitions": results[2]} if transitions else {})
+
+    options = task.compiler_options()
+    nested = jax.jit(rollouts)  # inside a caller's jitted program, compiled with the caller's options
+    alone = jax.jit(rollouts, compiler_options=options) if options else nested
 
     def score(genotypes: Any, key: jax.Array, body: jax.Array) -> tuple[jax.Array, jax.Array, dict[str, Any]]:
         del key  # deterministic episode start
@@ -167,10 +169,22 @@ def scoring_function(
                 f"body of shape {jnp.shape(body)}: a body of {task.name} under this schedule is a ({size},) array, "
                 f"one factor per channel ({names}): a row of phase_bodies(schedule, num_phases, key)"
             )
-        return rollouts(as_policies(task, genotypes), jnp.asarray(body, jnp.float32))
+        policies = as_policies(task, genotypes)
+        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((policies, body)))
+        return (nested if traced else alone)(policies, jnp.asarray(body, jnp.float32))
 
-    score.compiler_options = task.compiler_options()  # type: ignore[attr-defined]  # for `reevaluate`'s program
+    score.compiler_options = options  # type: ignore[attr-defined]  # for `reevaluate`'s program
     return score
+
+
+def compiler_options(task: Task | str) -> dict[str, str] | None:
+    """The XLA options to jit your own step with, so that its rollouts compile as fast as
+    smol-dsl's on CPUs (`smol_dsl.tasks.compiling`: the same results, bit for bit; None
+    where XLA's defaults are used). JAX takes compiler options only at the outermost jit:
+
+        update = jax.jit(step, compiler_options=compiler_options(task))
+    """
+    return as_task(task).compiler_options()
 
 
 @dataclass(frozen=True)

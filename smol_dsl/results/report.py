@@ -533,7 +533,9 @@ def render_report(
         panels = [(name, run.seed, run.final_archive()) for name, run in chosen.items()]
         by = table.metric.replace("_", " ")
         figures["archives"] = archives_figure(panels, low, high, f"{table.task}: final archives (median run by {by})")
-    reevaluation = reevaluation_figure(groups, f"{table.task}: what each re-evaluation kept (median and IQR over seeds)")
+    reevaluation = reevaluation_figure(
+        groups, f"{table.task}: what each re-evaluation kept (median and IQR over seeds)"
+    )
     if reevaluation is not None:  # runs that count their re-evaluations
         figures["reevaluation"] = reevaluation
     for stem, figure in figures.items():
