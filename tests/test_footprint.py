@@ -157,7 +157,7 @@ def test_processes_share_the_memory_check():
 
 def test_cli_dry_run_prints_the_estimate_and_runs_nothing(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert main(["run", "walker2d", "human", "--preset", "paper", "--dry-run"]) == 0
+    assert main(["run", "walker2d", "human", "--preset", "paper", "--dry-run", "--no-measure"]) == 0
     err = capsys.readouterr().err
     assert "what this will need, by arithmetic before compiling" in err
     assert "5,702 parameters" in err and "23.4 MB per run" in err
@@ -167,7 +167,7 @@ def test_cli_dry_run_prints_the_estimate_and_runs_nothing(tmp_path, monkeypatch,
 
 def test_a_small_budget_s_rate_is_not_printed_as_zero(tmp_path, capsys):
     flags = ["--evals", "208", "--batch-size", "16", "--phases", "10", "--centroids", "32", "--episode-length", "20"]
-    assert main(["run", "walker2d", "human", *flags, "--dry-run", "--out", str(tmp_path / "run")]) == 0
+    assert main(["run", "walker2d", "human", *flags, "--dry-run", "--no-measure", "--out", str(tmp_path / "run")]) == 0
     err = capsys.readouterr().err
     assert re.search(r"to finish in 1 h: 0\.\d+ evals/s \([\d.]+ steps/s\); 24 h: 0\.00\d+ evals/s", err), err
     assert " 0 evals/s" not in err
@@ -244,7 +244,7 @@ def test_the_estimate_is_within_15_percent_of_the_measured_peak_of_1_4_and_10_an
     """Sweeps as users start them, each in its own process: the estimate the sweep prints
     against the most memory it held (archives of 256 cells, ~77 MB a run)."""
     runs = [(seeds, tmp_path / f"sweep-{seeds}") for seeds in (1, 4, 10)]
-    estimates = [_SIZE.search(output).groups() for output, _ in _sweeps(runs, 256, "--dry-run")]
+    estimates = [_SIZE.search(output).groups() for output, _ in _sweeps(runs, 256, "--dry-run", "--no-measure")]
     peaks = [peak for _, peak in _sweeps(runs, 256)]  # side by side: each process's own peak
     measured = {
         seeds: (float(number) * _UNITS[unit], peak)

@@ -133,7 +133,8 @@ def test_reproduce_plans_the_paper_s_eight_conditions(tmp_path, capsys):
 
     out = tmp_path / "reproduce"
     code, err = cli(
-        ["reproduce", "walker2d", "--seeds", "3", "--evals", "2688", "--dry-run", "--out", str(out)], capsys
+        ["reproduce", "walker2d", "--seeds", "3", "--evals", "2688", "--dry-run", "--no-measure", "--out", str(out)],
+        capsys,
     )
     assert code == 0, err
     assert "smol-dsl reproduce: walker2d, 8 schedule(s) x 3 seed(s) = 24 runs" in err and "preset quick" in err
