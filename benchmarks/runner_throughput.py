@@ -8,7 +8,11 @@ Prints one `name: value` line per figure:
 - overhead_ratio: the engine's training evaluations/s on one device over a raw vmapped
   rollout of the same policies and batch (target >= 0.9);
 - vs_qdax_ratio: the engine's evaluations/s on one device over QDax's own MAP-Elites loop
-  (`update`) with QDax's walker2d_uni scoring at the same settings (target >= 1.0);
+  (`update`) with QDax's walker2d_uni scoring at the same settings, jitted as QDax's users
+  do (XLA's default options; target >= 1.0);
+- vs_qdax_same_options_ratio: the same, QDax's update jitted with the compiler options the
+  engine uses (`smol_dsl.qdax.compiler_options`: on CPUs, faster rollouts with the same
+  results), so the two differ in nothing but their own code;
 - compiles_2_phases, compiles_20_phases: XLA compilations of a whole run of 2 and of 20
   phases under a three-channel schedule (gear, mass, friction: examples/three-channels.sched), each in a
   fresh process (must be equal: every channel's value is traced);
@@ -159,13 +163,18 @@ def main() -> None:
         scoring_function=qdax_score, emitter=emitter, metrics_function=lambda r: default_qd_metrics(r, task.qd_offset)
     )
     qdax_repertoire, qdax_emitter_state, _ = map_elites.init(params, centroids, jax.random.key(5))
-    update = jax.jit(map_elites.update)
-    qdax_state = {"repertoire": qdax_repertoire, "key": jax.random.key(6)}
 
-    def qdax_generation() -> object:
-        qdax_state["key"], key = jax.random.split(qdax_state["key"])
-        qdax_state["repertoire"], _, metrics = update(qdax_state["repertoire"], qdax_emitter_state, key)
-        return metrics["coverage"]
+    def qdax_loop(options: dict[str, str] | None) -> Callable[[], object]:
+        """QDax's generation, its update jitted with these compiler options."""
+        update = jax.jit(map_elites.update, compiler_options=options)
+        state = {"repertoire": qdax_repertoire, "key": jax.random.key(6)}
+
+        def generation() -> object:
+            state["key"], key = jax.random.split(state["key"])
+            state["repertoire"], _, metrics = update(state["repertoire"], qdax_emitter_state, key)
+            return metrics["coverage"]
+
+        return generation
 
     one_generation, one_state = engine_generation(one)
     medians = interleaved(
@@ -173,7 +182,8 @@ def main() -> None:
             "raw": lambda: score(params, body, start)[0],
             "one_device": one_generation,
             "all_devices": engine_generation(every)[0],
-            "qdax": qdax_generation,
+            "qdax": qdax_loop(None),
+            "qdax_same_options": qdax_loop(task.compiler_options("cpu")),
         },
         args.repeats,
     )
@@ -183,7 +193,9 @@ def main() -> None:
     print(f"qdax_evals_per_s: {batch / medians['qdax']:.1f}")
     print(f"run_all_devices_over_one_device: {medians['one_device'] / medians['all_devices']:.3f}")
     print(f"overhead_ratio: {medians['raw'] / medians['one_device']:.3f}")
-    print(f"vs_qdax_ratio: {medians['qdax'] / medians['one_device']:.3f}", flush=True)
+    print(f"vs_qdax_ratio: {medians['qdax'] / medians['one_device']:.3f}")
+    print(f"qdax_same_options_evals_per_s: {batch / medians['qdax_same_options']:.1f}")
+    print(f"vs_qdax_same_options_ratio: {medians['qdax_same_options'] / medians['one_device']:.3f}", flush=True)
 
     # re-evaluation cost: 10% vs 100% full archives of the same size (one device)
     for _ in range(3):

@@ -663,6 +663,8 @@ def write_report(
     each file is written atomically. An out_dir that already holds a report is refused
     (ReportError) unless `force`, which replaces it (files of the earlier report that this one
     does not write, such as an ablation figure, are removed)."""
+    if gaits > 0 and replay is None:  # before anything is read
+        raise ValueError("rendering gaits needs `replay`: give replay=smol_dsl.runner.replay.replay_elites")
     earlier = check_output_directory(out_dir, force)
     groups = load_runs(paths, allow_mixed_environments)
     table = pvalue_table(groups, metric)

@@ -1,7 +1,7 @@
 """The bundled tasks' specs: QDax's locomotion tasks, sized as in the paper.
 
 Presets: "paper" is the paper's table of hyperparameters per task (its 1e7 evaluations,
-100 phases and 1024 cells are common to all, in smol_dsl.runner.config; hopper and ant_uni,
+100 phases and 1024 cells are common to all, in smol_dsl.rundir.presets; hopper and ant_uni,
 which the paper does not run, are sized as its uni tasks, with QDax's usual (64, 64)
 network); "quick" is sized so that a run takes a few minutes on 2 CPU cores. Raw rollouts
 (`scoring_fn` after compilation, the quick batch, 100 steps, one XLA device on 2 shared
