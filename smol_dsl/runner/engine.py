@@ -89,7 +89,7 @@ class Engine:
         # a generation is ask, score, tell and a re-evaluation pick, score, insert: the same
         # scoring program for both (the rollout is nearly all of the compilation)
         self._ask = self._sharded(self._reseeding_ask(step), ())
-        self._scores = self._over_runs(step.score, in_groups=True)
+        self._scores = self._over_runs(step.score, in_groups=True, reads_archives=False)
         self._tell = self._over_runs(step.tell, donate=(0,))
         self._pick = self._over_runs(step.pick)
         self._insert = self._over_runs(step.insert, donate=(0,))
@@ -111,22 +111,25 @@ class Engine:
         return jax.device_put(tree, self.sharding)
 
     # ------------------------------------------------------------------ per-run programs
-    def _over_runs(self, run_fn: Any, donate: tuple[int, ...] = (), in_groups: bool = False) -> Any:
+    def _over_runs(
+        self, run_fn: Any, donate: tuple[int, ...] = (), in_groups: bool = False, reads_archives: bool = True
+    ) -> Any:
         """`run_fn` over every local run: vmapped, or, `in_groups`, `runs_per_step` runs at a
         time one group after another (for making and scoring offspring, whose working memory
         grows with the runs at once). Programs that read or update whole archives are
         vmapped, so that a donated archive is updated in place."""
-        return self._sharded(self._local(run_fn, in_groups), donate)
+        return self._sharded(self._local(run_fn, in_groups, reads_archives), donate)
 
-    def _local(self, run_fn: Any, in_groups: bool) -> Any:
-        """`run_fn` over one device's runs (see `_over_runs`)."""
+    def _local(self, run_fn: Any, in_groups: bool, reads_archives: bool = True) -> Any:
+        """`run_fn` over one device's runs (see `_over_runs`); a program that takes no
+        archive (`reads_archives` False) scores groups of one run unbatched (`in_run_groups`)."""
         runs_per_step = self.runs_per_step if in_groups else None
 
         def local(*args: Any) -> Any:
             local_runs = jax.tree.leaves(args)[0].shape[0]
             if runs_per_step is None or runs_per_step >= local_runs:
                 return over_runs(run_fn)(*args)
-            return in_run_groups(run_fn, args, runs_per_step)
+            return in_run_groups(run_fn, args, runs_per_step, unbatched=not reads_archives)
 
         return local
 
@@ -225,7 +228,7 @@ class Engine:
         """`score`, with every step's positions (R, B, T, nq) and whether it counts (R, B, T):
         the same rollout on the same layout, for drawing the gaits."""
         if self._replays is None:
-            self._replays = self._over_runs(partial(self._score, poses=True), in_groups=True)
+            self._replays = self._over_runs(partial(self._score, poses=True), in_groups=True, reads_archives=False)
         return jax.device_get(self._replays(self.put(genotypes), self.put(bodies), self.put(starts)))
 
     def metrics(self, repertoires: MapElitesRepertoire) -> dict[str, np.ndarray]:
@@ -308,19 +311,29 @@ def over_runs(run_fn: Any) -> Any:
     return over
 
 
-def in_run_groups(run_fn: Any, args: tuple[Any, ...], group: int) -> Any:
+def in_run_groups(run_fn: Any, args: tuple[Any, ...], group: int, unbatched: bool = False) -> Any:
     """`vmap(run_fn)(*args)` computed a group of runs at a time (the largest divisor of the
     runs that is at most `group`), in a loop that reads its arguments in place: `lax.map`
-    would copy every scanned argument whole, an archive among them."""
+    would copy every scanned argument whole, an archive among them. With `unbatched`, groups
+    of one call `run_fn` on the run itself (for small arguments, such as a batch to score)."""
     runs = jax.tree.leaves(args)[0].shape[0]
     size = max(d for d in range(1, min(group, runs) + 1) if runs % d == 0)
-    mapped = over_runs(run_fn)
+    mapped = jax.vmap(run_fn)
     shapes = jax.eval_shape(mapped, *jax.tree.map(lambda x: x[:size], args))
     results = jax.tree.map(lambda s: _zeros((runs, *s.shape[1:]), s.dtype), shapes)
 
+    def part_of(first: jax.Array) -> Any:
+        """The group's results: a group of one `unbatched` is `run_fn` of that run (a rollout
+        vmapped over an axis of one is slower, `over_runs`); otherwise vmapped, which reads
+        slices of its arguments in place (unbatched, XLA copied a run's slice of an archive)."""
+        if size == 1 and unbatched:
+            one = run_fn(*jax.tree.map(lambda x: jax.lax.dynamic_index_in_dim(x, first, keepdims=False), args))
+            return jax.tree.map(lambda x: x[None], one)
+        return mapped(*jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), args))
+
     def step(index: jax.Array, results: Any) -> Any:
         first = index * size
-        part = mapped(*jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), args))
+        part = part_of(first)
         return jax.tree.map(lambda out, new: jax.lax.dynamic_update_slice_in_dim(out, new, first, 0), results, part)
 
     return jax.lax.fori_loop(0, runs // size, step, results)
