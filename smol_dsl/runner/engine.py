@@ -318,22 +318,15 @@ def in_run_groups(run_fn: Any, args: tuple[Any, ...], group: int, unbatched: boo
     of one call `run_fn` on the run itself (for small arguments, such as a batch to score)."""
     runs = jax.tree.leaves(args)[0].shape[0]
     size = max(d for d in range(1, min(group, runs) + 1) if runs % d == 0)
-    mapped = jax.vmap(run_fn)
+    # unbatched: a group of one is `run_fn` of that run (`over_runs`); an archive stays
+    # vmapped, which reads its slices in place (unbatched, XLA copied a run's slice)
+    mapped = over_runs(run_fn) if unbatched else jax.vmap(run_fn)
     shapes = jax.eval_shape(mapped, *jax.tree.map(lambda x: x[:size], args))
     results = jax.tree.map(lambda s: _zeros((runs, *s.shape[1:]), s.dtype), shapes)
 
-    def part_of(first: jax.Array) -> Any:
-        """The group's results: a group of one `unbatched` is `run_fn` of that run (a rollout
-        vmapped over an axis of one is slower, `over_runs`); otherwise vmapped, which reads
-        slices of its arguments in place (unbatched, XLA copied a run's slice of an archive)."""
-        if size == 1 and unbatched:
-            one = run_fn(*jax.tree.map(lambda x: jax.lax.dynamic_index_in_dim(x, first, keepdims=False), args))
-            return jax.tree.map(lambda x: x[None], one)
-        return mapped(*jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), args))
-
     def step(index: jax.Array, results: Any) -> Any:
         first = index * size
-        part = part_of(first)
+        part = mapped(*jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), args))
         return jax.tree.map(lambda out, new: jax.lax.dynamic_update_slice_in_dim(out, new, first, 0), results, part)
 
     return jax.lax.fori_loop(0, runs // size, step, results)
