@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from small_runs import FLAGS, RUN, cli, copy_of, small_config
+from small_runs import FLAGS, RUN, cli, copy_of, run_environment, small_config
 
 from smol_dsl.runner import RunError, checkpoint
 from smol_dsl.runner.checkpoint import CheckpointWriter, host_copy, load_checkpoint
@@ -118,7 +118,7 @@ def test_resume_from_a_checkpoint_of_another_run(small_run, library, tmp_path, c
     """walker2d's and halfcheetah's archives have the same shapes: the checkpoint says whose it is."""
     out = tmp_path / "halfcheetah"
     cheetah = small_config("halfcheetah")
-    prepare_run_directory(out, library["human"], cheetah, resume=False).release()
+    prepare_run_directory(out, library["human"], cheetah, resume=False, environment=run_environment()).release()
     shutil.copy(small_run / "checkpoint.npz", out / "checkpoint.npz")
     code, err = cli(["run", "halfcheetah", "human", *FLAGS, "--no-progress", "--out", str(out), "--resume"], capsys)
     assert code == 2

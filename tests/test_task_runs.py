@@ -23,6 +23,7 @@ def test_every_task_runs_under_every_library_schedule(library, task_name):
     task = make_task(task_name, episode_length=10, hidden_layer_sizes=(8, 8))
     # what the spec says of the body before it is built (archives are checked against it)
     assert task.observation_size == task.spec.observation_size
+    assert float(task.env.dt) == pytest.approx(task.spec.step_seconds)
     assert task.env.action_size == len(task.spec.anatomy.actuators)
     config = preset_config(
         task_name,

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from smol_dsl.cli.common import EXIT_OK, UsageError, positive_int
 
 if TYPE_CHECKING:
     import argparse
+
+    from smol_dsl.tasks import TaskSpec
 
 DEFAULT_SIZE = (320, 240)
 
@@ -71,19 +73,11 @@ def render_run(args: argparse.Namespace) -> int:
 
     use_cpu_cores_as_devices()  # the devices the run trained on: its scoring program, bit for bit
     from smol_dsl.results import gaits
-    from smol_dsl.rundir import RunDirectoryError, is_run_directory, load_archive, read_run
+    from smol_dsl.rundir import RunDirectoryError, load_archive, read_run
     from smol_dsl.runner.replay import replay_elites
+    from smol_dsl.tasks import task_spec
 
-    directory = Path(args.run_dir)
-    if not directory.is_dir():
-        raise UsageError(f"{directory}: no such run directory")
-    if not is_run_directory(directory):
-        from smol_dsl.results.report import find_run_directories
-
-        runs = find_run_directories([directory])
-        shown = ", ".join(str(p) for p in runs[:3]) + (", ..." if len(runs) > 3 else "")
-        hint = f"; it holds the runs {shown}: give one of them" if runs else " (one holds config.json and metrics.csv)"
-        raise UsageError(f"{directory} is not a run directory{hint}")
+    directory = _run_directory(Path(args.run_dir))
     out = gaits.check_output(args.out if args.out is not None else directory / "gait.gif")
     run = read_run(directory)
     if not run.finished or not (directory / "archive.npz").is_file():
@@ -96,8 +90,10 @@ def render_run(args: argparse.Namespace) -> int:
         raise RunDirectoryError(f"{directory / 'archive.npz'}: cannot be read ({error})") from None
     if not archive.filled.any():
         raise UsageError(f"{directory}: the final archive holds no elite")
-    cells = _cells(args, archive, directory)
+    cells = _cells(args, archive, directory, task_spec(run.task))
     bodies = gaits.resolve_bodies(args.body or ["final"], run)
+    steps = args.steps or run.config.episode_length
+    gaits.check_canvas(len(cells), len(bodies), args.size, steps, task_spec(run.task).step_seconds, out.suffix)
     started = time.perf_counter()
     rendered = gaits.render_gaits(run, archive, cells, bodies, replay=replay_elites, steps=args.steps, size=args.size)
     title = f"{run.task} under {run.schedule}, seed {run.seed}"
@@ -114,12 +110,35 @@ def render_run(args: argparse.Namespace) -> int:
                 "  (its frames come from the same rollout compiled with positions recorded, which rounds "
                 "differently here: contacts amplify float rounding, so the drawn episode may part from the scored one)"
             )
+    if rendered[0].inexact is not None:
+        print(
+            f"note: not replayed in the program that scored the archive ({rendered[0].inexact}): in the final body "
+            "the fitnesses agree with the archive's to float rounding, not bit for bit"
+        )
     frames = max(len(gait.frames) for gait in rendered)  # the tiles play together, the longest to its end
     print(f"wrote {out} ({frames} frames of {rendered[0].frame_ms:.0f} ms; rendered in {seconds:.1f} s)")
     return EXIT_OK
 
 
-def _cells(args: argparse.Namespace, archive: object, directory: Path) -> list[int]:
+def _run_directory(directory: Path) -> Path:
+    """The run directory RUN_DIR names, or a UsageError saying what it is instead."""
+    from smol_dsl.rundir import is_run_directory
+
+    if not directory.exists():
+        raise UsageError(f"{directory}: no such run directory")
+    if not directory.is_dir():
+        raise UsageError(f"{directory} is a file, not a run directory; give the directory `smol-dsl run` wrote")
+    if not is_run_directory(directory):
+        from smol_dsl.results.report import find_run_directories
+
+        runs = find_run_directories([directory])
+        shown = ", ".join(str(p) for p in runs[:3]) + (", ..." if len(runs) > 3 else "")
+        hint = f"; it holds the runs {shown}: give one of them" if runs else " (one holds config.json and metrics.csv)"
+        raise UsageError(f"{directory} is not a run directory{hint}")
+    return directory
+
+
+def _cells(args: argparse.Namespace, archive: object, directory: Path, spec: TaskSpec) -> list[int]:
     from smol_dsl.results import gaits
 
     if args.at is not None:
@@ -128,7 +147,9 @@ def _cells(args: argparse.Namespace, archive: object, directory: Path) -> list[i
         except ValueError:
             message = f"--at {args.at}: give the descriptor's values, comma-separated, e.g. --at 0.3,0.7"
             raise UsageError(message) from None
-        return [gaits.nearest_cell(archive, point)]
+        cell, distance = gaits.nearest_cell(archive, point)
+        _note_outside(args.at, point, spec, archive.descriptors[cell], cell, distance)
+        return [cell]
     if args.cells is not None:
         return gaits.spread_cells(archive, args.cells)
     if args.cell == "best":
@@ -138,3 +159,16 @@ def _cells(args: argparse.Namespace, archive: object, directory: Path) -> list[i
     except ValueError:
         raise UsageError(f"--cell {args.cell}: give `best` or a cell index, e.g. --cell 0") from None
     return [gaits.check_cell(archive, cell, directory)]
+
+
+def _note_outside(text: str, point: list[float], spec: TaskSpec, found: Any, cell: int, distance: float) -> None:
+    """Say so when --at lies outside the task's descriptor space, and which elite it took."""
+    bounds = list(zip(spec.descriptor_low, spec.descriptor_high, strict=True))
+    if all(low <= x <= high for x, (low, high) in zip(point, bounds, strict=True)):
+        return
+    space = " x ".join(f"[{low:g}, {high:g}]" for low, high in bounds)
+    where = ", ".join(f"{x:.4g}" for x in found)
+    print(
+        f"note: --at {text} lies outside {spec.name}'s descriptor space ({space}); the nearest elite, in cell {cell}, "
+        f"is at ({where}), {distance:.3g} away"
+    )

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from smol_dsl.qdax.scoring import drop_non_finite
+from smol_dsl.qdax.scoring import LANE, drop_non_finite, lanes
 
 if TYPE_CHECKING:
     from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
@@ -73,15 +73,19 @@ def insert_chunk(
     valid: jax.Array,
     extinction: jax.Array,
     death_key: jax.Array,
+    extra_scores: dict[str, Any] | None = None,
 ) -> tuple[MapElitesRepertoire, jax.Array, jax.Array]:
     """Re-scored elites that are `valid` (not padding), survive extinction (each dies with
-    probability `extinction`) and scored finite, into `fresh`; returns it, how many valid
-    ones were non-finite, and how many died (non-finite or by extinction: never inserted)."""
+    probability `extinction`) and scored finite, into `fresh`, with the `extra_scores` it
+    keeps (the scoring's, and each elite's lane: `LANE`); returns it, how many valid ones
+    were non-finite, and how many died (non-finite or by extinction: never inserted)."""
     survives = jax.random.uniform(death_key, jnp.shape(valid)) >= extinction
     fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
     inserted = valid & survives & finite
     fitnesses = jnp.where(inserted, fitnesses, -jnp.inf)
-    return fresh.add(genotypes, descriptors, fitnesses), jnp.sum(valid & ~finite), jnp.sum(valid & ~inserted)
+    extra_scores = {**(extra_scores or {}), LANE: lanes(fitnesses)}
+    fresh = fresh.add(genotypes, descriptors, fitnesses, extra_scores)
+    return fresh, jnp.sum(valid & ~finite), jnp.sum(valid & ~inserted)
 
 
 def kept_in_place(before: MapElitesRepertoire, after: MapElitesRepertoire) -> jax.Array:
@@ -149,8 +153,8 @@ def _chunk(
     key: jax.Array,
 ) -> tuple[MapElitesRepertoire, jax.Array]:
     genotypes, key, score_key, death_key = pick_chunk(source, index, key)
-    fitnesses, descriptors, _ = score(genotypes, score_key, body)
-    fresh, _, _ = insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
+    fitnesses, descriptors, extra_scores = score(genotypes, score_key, body)
+    fresh, _, _ = insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key, extra_scores)
     return fresh, key
 
 

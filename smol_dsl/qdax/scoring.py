@@ -36,6 +36,19 @@ if TYPE_CHECKING:
     Score = Callable[[Any, jax.Array, jax.Array], tuple[jax.Array, jax.Array, dict[str, Any]]]
 
 
+LANE = "lane"
+"""The extra score of an elite's lane: its position in the batch it was scored in. A
+rollout's last bits depend on its lane (XLA's CPU kernels block a batch's rows, and the
+rows of the last block are summed in another order), so the runner's archives keep each
+elite's lane (`lanes`, in QDax's `keys_extra_scores`), and a replay that puts the elite
+back in its lane of the same program gets the archive's fitness bit for bit."""
+
+
+def lanes(fitnesses: jax.Array) -> jax.Array:
+    """The lane of every result of a scored batch: 0, 1, ..., batch - 1 (int32)."""
+    return jnp.arange(jnp.shape(fitnesses)[0], dtype=jnp.int32)
+
+
 def drop_non_finite(fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Mark results with a non-finite fitness or descriptor as empty (-inf, never inserted).
 

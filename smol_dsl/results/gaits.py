@@ -42,6 +42,7 @@ GL_PACKAGES = {"egl": "libegl1 libgl1-mesa-dri", "osmesa": "libosmesa6"}
 MIN_FRAME_MS = 20.0
 FRAME_UNIT_MS = 10.0  # GIF delays are whole centiseconds
 VIDEO_FORMATS = (".gif", ".mp4", ".html")
+MP4_NEEDS = "writing .mp4 needs imageio and its ffmpeg: pip install 'smol-dsl[video]' (or write .gif or .html)"
 _PROBE = (
     "import mujoco; m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"1\"/></worldbody></mujoco>')\n"
     "r = mujoco.Renderer(m, 8, 8); d = mujoco.MjData(m); mujoco.mj_forward(m, d)\n"
@@ -56,7 +57,8 @@ class RenderError(UserInputError):
 class ReplayElites(Protocol):
     """How `render_gaits` has elites rolled out: `smol_dsl.runner.replay.replay_elites`,
     handed down by the caller, since rolling out needs the runner's engine. It returns `model`
-    (the task's MuJoCo model), `dt` (seconds per environment step) and, by (cell, body label),
+    (the task's MuJoCo model), `dt` (seconds per environment step), `inexact` (why fitnesses
+    may differ from the archive's by rounding, or None) and, by (cell, the body's index),
     `rollouts`: each with `fitness`, `descriptor`, `poses` (the episode start's positions, then
     every step's until the episode ends) and `scored` (the poses' rollout reached the scored
     fitness, bit for bit)."""
@@ -85,11 +87,17 @@ class Gait:
     frames: list[np.ndarray]  # (height, width, 3) uint8 each
     frame_ms: float
     frames_scored: bool = True  # the frames' rollout reached the scored fitness, bit for bit
+    inexact: str | None = None  # why the fitness may differ from the archive's by rounding; None: replayed exactly
 
     @property
     def label(self) -> str:
+        return " · ".join(self.label_lines)
+
+    @property
+    def label_lines(self) -> tuple[str, str]:
+        """The tile's label: the elite and its body; the factors and its fitness."""
         factors = ", ".join(f"{name} {value:.3g}" for name, value in self.body.items())
-        return f"cell {self.cell} · {self.body_label} body ({factors}) · fitness {self.fitness:.2f}"
+        return f"cell {self.cell} · {self.body_label} body", f"{factors} · fitness {self.fitness:.2f}"
 
 
 def gl_backend() -> str:
@@ -146,25 +154,33 @@ def frame_stride(dt: float) -> int:
 
 
 # ---------------------------------------------------------------------------------- choosing
-def nearest_cell(archive: Archive, descriptor: Sequence[float]) -> int:
-    """The filled cell whose elite's descriptor is nearest `descriptor`."""
+def nearest_cell(archive: Archive, descriptor: Sequence[float]) -> tuple[int, float]:
+    """The filled cell whose elite's descriptor is nearest `descriptor`, and its distance;
+    a RenderError for a point of another dimension or with a value that is not finite."""
+    shown = ",".join(str(x) for x in descriptor)
     point = np.asarray(descriptor, dtype=np.float64)
     if point.shape != archive.descriptors.shape[1:]:
         raise RenderError(
-            f"--at {','.join(str(x) for x in descriptor)}: this archive's descriptors have "
-            f"{archive.descriptors.shape[1]} value(s), comma-separated"
+            f"--at {shown}: this archive's descriptors have {archive.descriptors.shape[1]} value(s), comma-separated"
         )
+    if not np.isfinite(point).all():
+        raise RenderError(f"--at {shown}: give finite descriptor values, e.g. --at {','.join(['0.5'] * point.size)}")
     filled = np.flatnonzero(archive.filled)
     distances = np.linalg.norm(archive.descriptors[filled] - point, axis=1)
-    return int(filled[np.argmin(distances)])
+    nearest = int(np.argmin(distances))
+    return int(filled[nearest]), float(distances[nearest])
 
 
 def spread_cells(archive: Archive, count: int) -> list[int]:
     """`count` filled cells spread over the archive: the best, then each next the filled cell
-    farthest (in descriptor space) from those chosen."""
+    farthest (in descriptor space) from those chosen; a RenderError if it holds fewer."""
     filled = np.flatnonzero(archive.filled)
+    if count > len(filled):
+        raise RenderError(
+            f"--cells {count}: the archive holds {len(filled)} elite(s); give --cells {len(filled)} or fewer"
+        )
     chosen = [archive.best_cell]
-    while len(chosen) < min(count, len(filled)):
+    while len(chosen) < count:
         gaps = np.min(
             np.linalg.norm(archive.descriptors[filled][:, None] - archive.descriptors[chosen][None], axis=2), axis=1
         )
@@ -194,9 +210,23 @@ def phase_bodies(run: RunRecord) -> tuple[tuple[str, ...], np.ndarray]:
 
 
 def resolve_bodies(specs: Sequence[str], run: RunRecord) -> list[tuple[str, dict[str, float]]]:
-    """Each of `specs` (`resolve_body`), the run's phase bodies computed once."""
+    """Each of `specs` (`resolve_body`), the run's phase bodies computed once; a body given
+    twice, or factors outside what the run's task's physics takes (`TaskSpec.body_problem`,
+    as `check --task` proves schedules), is refused."""
+    from smol_dsl.language.channels import Channel
+    from smol_dsl.tasks import task_spec
+
     names, bodies = phase_bodies(run)
-    return [resolve_body(spec, names, bodies) for spec in specs]
+    resolved = []
+    for index, spec in enumerate(specs):
+        if spec.strip() in (earlier.strip() for earlier in specs[:index]):
+            raise RenderError(f"--body {spec} is given twice; give each body once")
+        label, body = resolve_body(spec, names, bodies)
+        problem = task_spec(run.task).body_problem({Channel.parse(name): value for name, value in body.items()})
+        if problem is not None:
+            raise RenderError(f"--body {spec}: {problem}")
+        resolved.append((label, body))
+    return resolved
 
 
 def resolve_body(spec: str, names: Sequence[str], bodies: np.ndarray) -> tuple[str, dict[str, float]]:
@@ -238,20 +268,19 @@ def render_gaits(
 ) -> list[Gait]:
     """Every cell in every body (cells × bodies), drawn `size` (width, height) pixels.
 
-    The fitness and descriptor are `replay`'s, the training's own scoring program's (the
-    run's engine: the same batch size, devices and episode start), so in the body the archive
-    was scored in they are the archive's, bit for bit, on the device layout the run trained
-    on. The frames come from the same rollout on the same layout, recording positions; `steps`
-    (default: the run's episode length) renders a longer or shorter episode than the one
-    scored."""
+    The fitness and descriptor are `replay`'s: the program that scored the archive, each
+    elite in its lane, so in the body the archive was scored in they are the archive's, bit
+    for bit, where that program can be built again (`Gait.inexact` says why not). The frames
+    come from the same rollout compiled to record positions; `steps` (default: the run's
+    episode length) renders a longer or shorter episode than the one scored."""
     gl_backend()  # before the replay loads MuJoCo
     replayed = replay(run, archive, cells, bodies, steps=steps)
     stride = frame_stride(replayed.dt)
     gaits = []
     with _Renderer(replayed.model, size) as draw:
         for cell in cells:
-            for label, body in bodies:
-                rollout = replayed.rollouts[cell, label]
+            for index, (label, body) in enumerate(bodies):
+                rollout = replayed.rollouts[cell, index]
                 gaits.append(
                     Gait(
                         cell=int(cell),
@@ -263,6 +292,7 @@ def render_gaits(
                         frames=[draw(pose) for pose in rollout.poses[::stride]],
                         frame_ms=stride * replayed.dt * 1000.0,
                         frames_scored=rollout.scored,
+                        inexact=replayed.inexact,
                     )
                 )
     return gaits
@@ -280,6 +310,8 @@ class _Renderer:
         names = [self.model.camera(i).name for i in range(self.model.ncam)]
         self.camera = "track" if "track" in names else -1
         width, height = size
+        visual = self.model.vis.global_  # MuJoCo's offscreen framebuffer (640x480 unless the model says more)
+        visual.offwidth, visual.offheight = max(visual.offwidth, width), max(visual.offheight, height)
         self.renderer = mujoco.Renderer(self.model, height=height, width=width)
         self.data = mujoco.MjData(self.model)
 
@@ -297,28 +329,71 @@ class _Renderer:
 
 
 # ---------------------------------------------------------------------------------- writing
+BANNER = 28  # pixels above each tile: its label, two lines of the default bitmap font
+MAX_SIDE = {".gif": 65_535, ".html": 65_535, ".mp4": 16_384}  # GIF's 16-bit sides; H.264's largest frame
+MAX_FRAME_BYTES = 2 * 1024**3
+"""The most memory the frames of one render may take (the tiles and the tiled images)."""
+
+
+def grid(tiles: int, bodies: int) -> tuple[int, int]:
+    """(rows, columns) of the tiles: one row per elite with its bodies side by side when
+    there are several bodies, else a near-square grid of the elites."""
+    columns = bodies if bodies > 1 else math.ceil(math.sqrt(tiles))
+    return math.ceil(tiles / columns), columns
+
+
+def check_canvas(
+    cells: int, bodies: int, size: tuple[int, int], steps: int, step_seconds: float, suffix: str
+) -> tuple[int, int]:
+    """Refuse (RenderError), before anything is rolled out, a render whose tiled image is
+    too large for its format or whose frames would take more than MAX_FRAME_BYTES; returns
+    the image's (width, height)."""
+    rows, columns = grid(cells * bodies, bodies)
+    width, height = columns * size[0], rows * (size[1] + BANNER)
+    most = MAX_SIDE[suffix.lower()]
+    if max(width, height) > most:
+        raise RenderError(
+            f"{cells * bodies} tile(s) of {size[0]}x{size[1]} make a {width}x{height} image, over {suffix}'s largest "
+            f"side of {most} pixels; render fewer --cells or a smaller --size"
+        )
+    frames = steps // frame_stride(step_seconds) + 1
+    needed = 2 * frames * width * height * 3
+    if needed > MAX_FRAME_BYTES:
+        raise RenderError(
+            f"{frames} frames of {width}x{height} pixels would take {needed / 1024**3:.1f} GiB of memory (at most "
+            f"{MAX_FRAME_BYTES / 1024**3:.0f}); render fewer --cells, a smaller --size or fewer --steps"
+        )
+    return width, height
+
+
 def tiled_frames(gaits: Sequence[Gait]) -> list[np.ndarray]:
-    """The gaits side by side, each under its label; a gait whose episode ended early holds
-    its last frame."""
+    """The gaits in a grid (`grid`: an elite's bodies side by side), each under its label;
+    a gait whose episode ended early holds its last frame."""
     from PIL import Image, ImageDraw
 
     length = max(len(g.frames) for g in gaits)
-    width = gaits[0].frames[0].shape[1]
-    banner = 16
+    height, width = gaits[0].frames[0].shape[:2]
+    bodies = sum(1 for gait in gaits if gait.cell == gaits[0].cell)  # gaits come elite by elite
+    rows, columns = grid(len(gaits), bodies)
     labels = []
     for gait in gaits:
-        strip = Image.new("RGB", (width, banner), (255, 255, 255))
-        ImageDraw.Draw(strip).text((3, 2), _fit(gait.label, width), fill=(0, 0, 0))
+        strip = Image.new("RGB", (width, BANNER), (255, 255, 255))
+        for line, text in enumerate(gait.label_lines):
+            ImageDraw.Draw(strip).text((3, 2 + 12 * line), _fit(text, width), fill=(0, 0, 0))
         labels.append(np.asarray(strip))
+    blank = np.zeros((BANNER + height, width, 3), dtype=np.uint8)
     frames = []
     for index in range(length):
         tiles = [np.concatenate([label, g.frames[min(index, len(g.frames) - 1)]]) for g, label in zip(gaits, labels)]
-        frames.append(np.concatenate(tiles, axis=1))
+        tiles += [blank] * (rows * columns - len(tiles))
+        frames.append(
+            np.concatenate([np.concatenate(tiles[r * columns : (r + 1) * columns], axis=1) for r in range(rows)])
+        )
     return frames
 
 
 def _fit(text: str, width: int) -> str:
-    most = max(8, width // 6)  # the default bitmap font is ~6 px a character
+    most = max(2, (width - 4) // 6)  # the default bitmap font is ~6 px a character
     return text if len(text) <= most else text[: most - 1] + "…"
 
 
@@ -337,9 +412,7 @@ def mp4_bytes(gaits: Sequence[Gait]) -> bytes:
     try:
         import imageio.v2 as imageio
     except ImportError:
-        raise RenderError(
-            "writing .mp4 needs imageio and its ffmpeg: pip install 'smol-dsl[video]' (or write .gif or .html)"
-        ) from None
+        raise RenderError(MP4_NEEDS) from None
     import tempfile
 
     frames = tiled_frames(gaits)
@@ -390,15 +463,22 @@ def html_page(gaits: Sequence[Gait], title: str) -> bytes:
 <th>descriptor</th></tr>
 {rows}
 </table>
-<p>{len(gaits[0].frames)} frames of {gaits[0].frame_ms:.0f} ms (real time).</p>
+<p>{max(len(gait.frames) for gait in gaits)} frames of {gaits[0].frame_ms:.0f} ms (real time).</p>
 </body></html>
 """
     return page.encode("utf-8")
 
 
 def check_output(out: str | Path) -> Path:
-    """-o's file: its suffix names a format and its folder exists."""
-    return check_output_file(out, VIDEO_FORMATS, "gait.gif", RenderError)
+    """-o's file: its suffix names a format whose writer is installed, and its folder
+    exists and can be written."""
+    path = check_output_file(out, VIDEO_FORMATS, "gait.gif", RenderError)
+    if path.suffix.lower() == ".mp4":
+        import importlib.util
+
+        if importlib.util.find_spec("imageio") is None or importlib.util.find_spec("imageio_ffmpeg") is None:
+            raise RenderError(MP4_NEEDS)
+    return path
 
 
 def write_gaits(out: str | Path, gaits: Sequence[Gait], title: str = "gaits") -> Path:

@@ -564,7 +564,9 @@ def gait_files(
     for index, (name, runs) in enumerate(groups.items()):
         run = median_run(runs, metric)
         archive = load_archive(run.directory)
-        cells = rendering.spread_cells(archive, count)
+        if not archive.filled.any():
+            continue
+        cells = rendering.spread_cells(archive, min(count, int(archive.filled.sum())))
         drawn = rendering.render_gaits(run, archive, cells, rendering.resolve_bodies(["final"], run), replay=replay)
         slug = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "schedule"
         described = "; ".join(f"cell {g.cell}: fitness {g.fitness:.2f}" for g in drawn)

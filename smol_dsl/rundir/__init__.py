@@ -27,7 +27,7 @@ that could not be written):
     log = MetricsLog(directory / METRICS_FILE, rows)   # exactly `rows`, written atomically
     log.append(metrics_row(generation=..., phase=..., alpha=..., event="train", ...))
     write_archive(directory / ARCHIVE_FILE, arrays)    # {"genotypes/<param path>": (C, ...), "fitnesses",
-                                                       #  "descriptors", "centroids"}; `filled` is derived
+                                                       #  "descriptors", "centroids", "lanes"}; `filled` is derived
 
 Reading, for the report and for users:
 
@@ -39,6 +39,7 @@ Reading, for the report and for users:
 from smol_dsl.rundir.archive import (
     ARCHIVE_ARRAYS,
     GENOTYPES,
+    LANES,
     Archive,
     FinalArchive,
     load_archive,
@@ -48,11 +49,14 @@ from smol_dsl.rundir.archive import (
 from smol_dsl.rundir.certificate import CertificateRecord, certificate_record, certificate_text, read_certificate
 from smol_dsl.rundir.config import RunConfig, read_config
 from smol_dsl.rundir.environment import (
+    RESUME_COMPARED,
     describe_environment,
     environment_differences,
+    latest_environment,
     read_environment,
     read_environment_changes,
     record_environment_change,
+    scoring_layout,
 )
 from smol_dsl.rundir.files import atomic_write, read_text, write_npz, write_text
 from smol_dsl.rundir.layout import (
@@ -113,6 +117,7 @@ __all__ = [
     "EVENTS",
     "FILES",
     "GENOTYPES",
+    "LANES",
     "LOCK_FILE",
     "METRICS_FIGURE",
     "METRICS_FILE",
@@ -120,6 +125,7 @@ __all__ = [
     "METRIC_FIELDS",
     "PRESETS",
     "REEVALUATION_FIELDS",
+    "RESUME_COMPARED",
     "RUN_MARKERS",
     "SCHEDULE_FILE",
     "SCORES",
@@ -147,6 +153,7 @@ __all__ = [
     "final_body_evaluations",
     "first_tail_phase",
     "is_run_directory",
+    "latest_environment",
     "load_archive",
     "metrics_row",
     "metrics_schema",
@@ -162,6 +169,7 @@ __all__ = [
     "record_environment_change",
     "scheduled_columns",
     "schema_of_header",
+    "scoring_layout",
     "write_archive",
     "write_npz",
     "write_run_files",

@@ -23,8 +23,12 @@ if TYPE_CHECKING:
 
 
 ARCHIVE_ARRAYS = ("fitnesses", "descriptors", "centroids", "filled")
-"""archive.npz's arrays besides the policies (`genotypes/<parameter path>`)."""
+"""archive.npz's arrays besides the policies (`genotypes/<parameter path>`) and lanes."""
 GENOTYPES = "genotypes/"
+LANES = "lanes"
+"""archive.npz's (C,) int32 array of each elite's lane, its position in the batch it was
+scored in (-1 where unknown: archives written before runs kept them); a replay in the same
+program and lane gives the archive's fitness bit for bit (`smol_dsl.runner.replay`)."""
 
 
 def policy_shapes(task: str, config: RunConfig, cells: int) -> dict[str, tuple[int, ...]] | None:
@@ -44,9 +48,9 @@ def policy_shapes(task: str, config: RunConfig, cells: int) -> dict[str, tuple[i
 
 def write_archive(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
     """The final archive as `.npz`, atomically, from host arrays: `genotypes/<param path>`
-    (C, ...), `fitnesses` (C,) or (C, 1), `descriptors` (C, D), `centroids` (C, D). Fitnesses
-    are stored as (C,), and `filled` (C,) is where they are above -inf."""
-    unknown = [name for name in arrays if not name.startswith(GENOTYPES) and name not in ARCHIVE_ARRAYS]
+    (C, ...), `fitnesses` (C,) or (C, 1), `descriptors` (C, D), `centroids` (C, D) and
+    `lanes` (C,). Fitnesses are stored as (C,), and `filled` (C,) is where they are above -inf."""
+    unknown = [name for name in arrays if not name.startswith(GENOTYPES) and name not in (*ARCHIVE_ARRAYS, LANES)]
     if unknown:
         raise ValueError(f"write_archive: unknown array(s) {unknown}")
     fitnesses = np.asarray(arrays["fitnesses"]).reshape(-1)
@@ -62,6 +66,7 @@ class Archive:
     descriptors: np.ndarray
     centroids: np.ndarray
     filled: np.ndarray
+    lanes: np.ndarray | None = None  # each elite's lane (`LANES`); None in archives written before they were kept
 
     def elite(self, cell: int) -> dict[str, Any]:
         """The policy parameters in one cell, ready for `policy.apply(params, obs)`."""
@@ -93,7 +98,8 @@ def load_archive(path: str | os.PathLike[str]) -> Archive:
             for part in parents:
                 node = node.setdefault(part, {})
             node[leaf] = data[name]
-        return Archive(genotypes=genotypes, **{name: data[name] for name in ARCHIVE_ARRAYS})
+        lanes = data[LANES] if LANES in data.files else None
+        return Archive(genotypes=genotypes, lanes=lanes, **{name: data[name] for name in ARCHIVE_ARRAYS})
 
 
 @dataclass(frozen=True)

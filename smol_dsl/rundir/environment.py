@@ -9,7 +9,11 @@ records in one table unless told to (`environment_differences` names what differ
 
 Only what can change the numbers is compared (`COMPARED`): Python, the numerical
 packages, smol-dsl's version and commit, the devices and the processor. The operating
-system and the host's name are recorded, not compared.
+system and the host's name are recorded, not compared. A run's `layout` (how its scoring
+program laid the runs trained together out: `scoring_layout`) is compared when it resumes,
+not by a report: a sweep's run and `smol-dsl run` of that seed are the same algorithm in
+two programs, whose last bits differ; `render` rebuilds that program to replay an elite
+bit for bit.
 """
 
 from __future__ import annotations
@@ -45,12 +49,24 @@ VECTOR_EXTENSIONS = (
 )
 """The processor's instruction-set extensions that XLA's CPU code generation uses."""
 COMPARED = ("python", "smol_dsl", "commit", "packages", "devices", "processor")
-"""The entries of a record that can change a run's numbers: the ones compared."""
+"""The entries of a record that can change a run's numbers: the ones a report compares."""
+LAYOUT = "layout"
+RESUME_COMPARED = (*COMPARED, LAYOUT)
+"""What a resume compares: the environment, and the run's place in its scoring program."""
 
 
-def describe_environment(devices: Sequence[Any]) -> dict[str, Any]:
+def scoring_layout(runs: int, index: int, runs_per_step: int | None, channels: Sequence[str]) -> dict[str, Any]:
+    """How a run was laid out in the program that scored it: the `runs` its process trained
+    together (1 for `smol-dsl run`), its `index` among them, the runs a device advanced at
+    once (`runs_per_step`; None: all) and the `channels` of the bodies the program took
+    (the union of those runs' schedules'). With the record's device count, that program can
+    be built again (`smol_dsl.runner.replay`)."""
+    return {"runs": runs, "index": index, "runs_per_step": runs_per_step, "channels": list(channels)}
+
+
+def describe_environment(devices: Sequence[Any], layout: dict[str, Any] | None = None) -> dict[str, Any]:
     """What a run on `devices` (objects with `platform` and `device_kind`, as JAX's devices)
-    runs under, as environment.json records it."""
+    runs under, as environment.json records it, with its `layout` (`scoring_layout`) if given."""
     kinds = sorted({str(getattr(device, "device_kind", device.platform)) for device in devices})
     return {
         "python": platform.python_version(),
@@ -61,22 +77,28 @@ def describe_environment(devices: Sequence[Any]) -> dict[str, Any]:
         "processor": _processor(),
         "system": platform.platform(),
         "host": platform.node(),
+        **({LAYOUT: layout} if layout is not None else {}),
     }
 
 
-def environment_differences(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]:
-    """What differs between two records in what can change the numbers, one phrase each
-    ("jax 0.10.2 -> 0.12.0"), in `COMPARED`'s order."""
+def environment_differences(
+    recorded: dict[str, Any], current: dict[str, Any], compared: Sequence[str] = COMPARED
+) -> list[str]:
+    """What differs between two records in `compared` (by default what can change the
+    numbers), one phrase each ("jax 0.10.2 -> 0.12.0"), in that order. A layout is compared
+    only where both records hold one (runs recorded before layouts were have none)."""
     return [
         f"{name} {_shown(before)} -> {_shown(after)}"
-        for name, before, after in _compared(recorded, current)
+        for name, before, after in _compared(recorded, current, compared)
         if before != after
     ]
 
 
-def _compared(recorded: dict[str, Any], current: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+def _compared(recorded: dict[str, Any], current: dict[str, Any], compared: Sequence[str]) -> list[tuple[str, Any, Any]]:
     pairs = []
-    for key in COMPARED:
+    for key in compared:
+        if key == LAYOUT and (key not in recorded or key not in current):
+            continue
         before, after = recorded.get(key), current.get(key)
         if isinstance(before, dict) and isinstance(after, dict):
             for inner in sorted(set(before) | set(after), key=lambda k: (k not in before, k)):
@@ -100,19 +122,34 @@ def environment_text(environment: dict[str, Any]) -> str:
     return json.dumps({"environment": environment, "changes": []}, indent=2)
 
 
+MISSING_RECORD = "environment.json was missing: what the run was started under is unknown"
+"""The difference recorded when a run without environment.json is resumed (allowed)."""
+
+
 def record_environment_change(directory: Path, current: dict[str, Any], differences: list[str]) -> None:
-    """Note in environment.json that the run went on under `current` (allowed by the user)."""
-    data = _environment_file(directory)
+    """Note in environment.json that the run went on under `current` (allowed by the user).
+    A run without the file gets one whose start is unknown (an empty record) and this change."""
+    if (directory / ENVIRONMENT_FILE).is_file():
+        data = _environment_file(directory)
+    else:
+        data, differences = {"environment": {}, "changes": []}, [MISSING_RECORD]
     data["changes"].append({"environment": current, "differences": differences})
     write_text(directory / ENVIRONMENT_FILE, json.dumps(data, indent=2))
 
 
 def read_environment(directory: Path) -> dict[str, Any] | None:
     """The environment a run was started under (None for a run directory without an
-    environment.json, written before runs recorded one)."""
+    environment.json; an empty record where the start is unknown)."""
     if not (directory / ENVIRONMENT_FILE).is_file():
         return None
     return _environment_file(directory)["environment"]
+
+
+def latest_environment(directory: Path) -> dict[str, Any] | None:
+    """The environment a run last went on under: its start's, or its last change's (None
+    without an environment.json)."""
+    changes = read_environment_changes(directory)
+    return changes[-1]["environment"] if changes else read_environment(directory)
 
 
 def read_environment_changes(directory: Path) -> list[dict[str, Any]]:
@@ -133,8 +170,17 @@ def _environment_file(directory: Path) -> dict[str, Any]:
         not isinstance(data, dict)
         or not isinstance(data.get("environment"), dict)
         or not isinstance(data.get("changes"), list)
+        or not all(
+            isinstance(change, dict)
+            and isinstance(change.get("environment"), dict)
+            and isinstance(change.get("differences"), list)
+            for change in data["changes"]
+        )
     ):
-        raise RunDirectoryError(f"{path}: expected an object with 'environment' and 'changes'; {fix}")
+        raise RunDirectoryError(
+            f"{path}: expected an object with 'environment' and 'changes' (each an 'environment' and its "
+            f"'differences'); {fix}"
+        )
     return data
 
 

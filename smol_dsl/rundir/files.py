@@ -61,8 +61,9 @@ def check_output_file(
     path: str | os.PathLike[str], formats: Sequence[str], example: str, error: type[Exception]
 ) -> Path:
     """A file a command is to write (its -o): refused with `error` unless its suffix is one of
-    `formats` and its folder exists, and it is not a directory (`example` names a file to
-    suggest inside it)."""
+    `formats`, its folder exists and takes a new file (tried: what `atomic_write` writes
+    first), and it is not a directory (`example` names a file to suggest inside it); so a
+    command can check its output before it does any work."""
     out = Path(path)
     if out.suffix.lower() not in formats:
         raise error(f"cannot write {out}: the format is chosen by the suffix, one of {', '.join(formats)}")
@@ -70,6 +71,14 @@ def check_output_file(
         raise error(f"cannot write {out}: no such directory {out.parent}")
     if out.is_dir():
         raise error(f"cannot write {out}: it is a directory; give -o a file name, such as {out / example}")
+    probe = out.with_name(f"{out.name}.{os.getpid()}.tmp")
+    try:
+        with open(probe, "xb"):
+            pass
+        probe.unlink()
+    except OSError as problem:
+        reason = problem.strerror or type(problem).__name__
+        raise error(f"cannot write {out}: {reason} in {out.parent}; give -o a file in a folder you can write") from None
     return out
 
 

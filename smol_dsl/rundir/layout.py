@@ -42,7 +42,8 @@ FILES = (
     (
         ARCHIVE_FILE,
         "the final archive: `genotypes/<parameter path>` (C, ...), `fitnesses` (C,), `descriptors` (C, D), "
-        "`centroids` (C, D), `filled` (C,); an empty cell's fitness is −inf",
+        "`centroids` (C, D), `filled` (C,), `lanes` (C,): each elite's position in the batch it was scored in; "
+        "an empty cell's fitness is −inf",
     ),
     (METRICS_FIGURE, "max fitness, coverage, QD score and every scheduled channel's factor over training evaluations"),
     (

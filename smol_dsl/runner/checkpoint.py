@@ -27,7 +27,8 @@ import jax
 import numpy as np
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 
-from smol_dsl.rundir import write_npz
+from smol_dsl.qdax.scoring import LANE
+from smol_dsl.rundir import LANES, write_npz
 from smol_dsl.runner.config import RunError
 
 KEYS = "keys"
@@ -110,19 +111,24 @@ def archive_arrays(repertoire: MapElitesRepertoire, runs: int | slice | None = N
     arrays["fitnesses"] = host_copy(repertoire.fitnesses, runs)
     arrays["descriptors"] = host_copy(repertoire.descriptors, runs)
     arrays["centroids"] = host_copy(repertoire.centroids, runs)
+    if LANE in repertoire.extra_scores:
+        arrays[LANES] = host_copy(repertoire.extra_scores[LANE], runs)
     return arrays
 
 
 def _repertoire_from(data: Any, genotype_template: Any) -> MapElitesRepertoire:
-    """The archive saved by _repertoire_arrays, its genotypes shaped like the template's."""
+    """The archive saved by `archive_arrays`, its genotypes shaped like the template's; the
+    lanes of a checkpoint written before archives kept them are unknown (-1)."""
     leaves = [jax.numpy.asarray(data[f"genotypes/{name}"]) for name in _leaf_names(genotype_template)]
+    fitnesses = jax.numpy.asarray(data["fitnesses"])
+    lanes = data[LANES] if LANES in data.files else np.full(fitnesses.shape[: -1 if fitnesses.ndim > 2 else None], -1)
     return MapElitesRepertoire(
         genotypes=jax.tree.unflatten(jax.tree.structure(genotype_template), leaves),
-        fitnesses=jax.numpy.asarray(data["fitnesses"]),
+        fitnesses=fitnesses,
         descriptors=jax.numpy.asarray(data["descriptors"]),
         centroids=jax.numpy.asarray(data["centroids"]),
-        extra_scores={},
-        keys_extra_scores=(),
+        extra_scores={LANE: jax.numpy.asarray(lanes, dtype=jax.numpy.int32)},
+        keys_extra_scores=(LANE,),
     )
 
 
@@ -292,6 +298,8 @@ def _check_layout(
         for name, leaf in zip(_leaf_names(template), jax.tree.leaves(template), strict=True)
     }
     expected["fitnesses"] = (*layout, 1)
+    if LANES in data.files:  # written since archives keep every elite's lane
+        expected[LANES] = layout
     expected["key_data"] = layout[:-1] + tuple(jax.random.key_data(jax.random.key(0)).shape)
     if descriptors is not None:
         expected["descriptors"] = expected["centroids"] = (*layout, descriptors)

@@ -24,11 +24,12 @@ from smol_dsl.rundir import (
     CONFIG_FILE,
     ENVIRONMENT_FILE,
     LOCK_FILE,
+    RESUME_COMPARED,
     SCHEDULE_FILE,
     SWEEP_FILE,
     RunConfig,
     environment_differences,
-    read_environment,
+    latest_environment,
     record_environment_change,
     write_run_files,
     write_text,
@@ -138,12 +139,21 @@ def _resume_run_directory(
 
 
 def _check_environment(directory: Path, environment: dict[str, Any], allow_change: bool) -> None:
-    """Refuse to resume a run under an environment other than the one it recorded (its
-    numbers would mix two compilations of the physics), or record the change if allowed."""
-    recorded = read_environment(directory)
-    if recorded is None:  # a run from before runs recorded their environment
+    """Refuse to resume a run under an environment or scoring layout other than the one it
+    last went on under (its numbers would mix two compilations of the physics), or one
+    whose environment.json is gone (what it started under is unknown); or, if allowed,
+    record the change."""
+    recorded = latest_environment(directory)
+    if recorded is None:
+        if not allow_change:
+            raise RunError(
+                f"{directory} holds no {ENVIRONMENT_FILE}, so what the run was started under is unknown and resuming "
+                "could mix two builds of the physics unseen: put the file back, or pass --allow-environment-change "
+                "to go on (a new environment.json records that the start's environment is unknown)"
+            )
+        record_environment_change(directory, environment, [])
         return
-    differences = environment_differences(recorded, environment)
+    differences = environment_differences(recorded, environment, RESUME_COMPARED)
     if not differences:
         return
     if not allow_change:
@@ -302,10 +312,11 @@ def prepare_sweep_directory(
     resume: bool,
     shared: bool,
     checkpoint_name: str,
-    environment: dict[str, Any] | None = None,
+    environments: list[dict[str, Any]] | None = None,
     allow_environment_change: bool = False,
 ) -> contextlib.ExitStack:
-    """Write or check sweep.json (all runs) and prepare this process's run directories.
+    """Write or check sweep.json (all runs) and prepare this process's run directories,
+    each with its environment (`environments`, one per run of `runs`).
     A directory `shared` by several processes may already hold the others' runs.
 
     Returns the locks this process holds, as one context manager: every run directory it
@@ -325,7 +336,7 @@ def prepare_sweep_directory(
         _check_sweep_file(directory, description, compare=resume or shared)
         if not resume:
             set_up(directory, lambda: write_text(directory / SWEEP_FILE, json.dumps(description, indent=2)))
-        for run in runs:
+        for run, environment in zip(runs, environments or [None] * len(runs), strict=True):
             locks.enter_context(
                 _prepare_sweep_run(directory / run.name, run, resume, environment, allow_environment_change)
             )

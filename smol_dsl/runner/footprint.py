@@ -300,7 +300,8 @@ def plan_footprint(
     this process, now) besides the programs it will compile."""
     sizes = task_sizes(config.task, tuple(config.hidden_layer_sizes))
     descriptors = sizes.descriptors
-    archive = config.num_centroids * (sizes.parameters + 1 + 2 * descriptors) * FLOAT_BYTES
+    # per cell: the policy, its fitness and lane (4 bytes each), its descriptor and centroid
+    archive = config.num_centroids * (sizes.parameters + 2 + 2 * descriptors) * FLOAT_BYTES
     policies = POLICY_COPIES * config.batch_size * sizes.parameters * FLOAT_BYTES
     per_episode = config.episode_length * (descriptors + 2) * FLOAT_BYTES  # rewards, descriptors, ends
     rollouts = config.batch_size * (STATE_COPIES * sizes.state_bytes + per_episode)

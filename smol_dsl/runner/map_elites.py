@@ -35,7 +35,7 @@ from qdax.core.map_elites import MAPElites
 from qdax.utils.metrics import default_qd_metrics
 
 from smol_dsl.qdax.reevaluation import insert_chunk, pick_chunk
-from smol_dsl.qdax.scoring import drop_non_finite, initial_key
+from smol_dsl.qdax.scoring import LANE, drop_non_finite, initial_key, lanes
 
 Metrics = dict[str, jax.Array]
 
@@ -63,8 +63,9 @@ def tell_finite(
     descriptors: jax.Array,
     repertoire: MapElitesRepertoire,
 ) -> tuple[MapElitesRepertoire, Metrics, jax.Array]:
-    """QDax's tell after non-finite results are dropped; also returns how many were dropped.
-    (Iso+line variation of uniformly chosen elites keeps no emitter state.)"""
+    """QDax's tell after non-finite results are dropped, every elite with its lane; also
+    returns how many were dropped. (Iso+line variation of uniformly chosen elites keeps no
+    emitter state.)"""
     fitnesses, descriptors, finite = drop_non_finite(fitnesses, descriptors)
     repertoire, _, metrics = map_elites.tell(
         genotypes=genotypes,
@@ -72,14 +73,19 @@ def tell_finite(
         descriptors=descriptors,
         repertoire=repertoire,
         emitter_state=None,
+        extra_scores={LANE: lanes(fitnesses)},
     )
     return repertoire, metrics, jnp.sum(~finite)
 
 
 def empty_archive(example_genotypes: Any, centroids: jax.Array) -> MapElitesRepertoire:
-    """An archive with no elites on these centroids, for genotypes shaped like a batch's."""
+    """An archive with no elites on these centroids, for genotypes shaped like a batch's,
+    that keeps every elite's lane (`smol_dsl.qdax.scoring.LANE`)."""
     one = jax.tree.map(lambda x: x[0], example_genotypes)
-    return MapElitesRepertoire.init_default(genotype=one, centroids=centroids)
+    lane = {LANE: jnp.zeros((), jnp.int32)}
+    return MapElitesRepertoire.init_default(
+        genotype=one, centroids=centroids, one_extra_score=lane, keys_extra_scores=(LANE,)
+    )
 
 
 @dataclass(frozen=True)

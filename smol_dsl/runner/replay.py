@@ -4,6 +4,14 @@ drawing their gaits.
 `replay_elites` is what `smol_dsl.results.gaits.render_gaits` takes as its `replay`: the
 command line hands it down, since rolling out needs the runner's engine and drawing is the
 results'. Importing this module imports no JAX; calling `replay_elites` does.
+
+An elite's fitness is bit for bit the archive's when it is scored by the program that
+scored it, in the same lane: the engine the run trained on (its devices, the runs trained
+together, the runs a device advanced at once, the channels of their bodies: the layout
+environment.json records), with the run in its place among those runs and the elite at
+its position in the batch (archive.npz's `lanes`). `replay_layout` says when that program
+can be built again here; elsewhere (another environment, a run resumed under another
+layout, too few devices) the fitness agrees to float rounding only, and the replay says why.
 """
 
 from __future__ import annotations
@@ -14,6 +22,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from smol_dsl.rundir import (
+    describe_environment,
+    environment_differences,
+    latest_environment,
+    read_environment_changes,
+)
 
 if TYPE_CHECKING:
     from smol_dsl.rundir.archive import Archive
@@ -36,7 +51,90 @@ class Replay:
 
     model: Any  # the task's `mujoco.MjModel`
     dt: float  # seconds per environment step
-    rollouts: dict[tuple[int, str], Rollout]  # by (cell, body label)
+    rollouts: dict[tuple[int, int], Rollout]  # by (cell, index of the body in the bodies given)
+    inexact: str | None = None  # why fitnesses may differ from the archive's by rounding; None: its program and lanes
+
+
+@dataclass(frozen=True)
+class ReplayLayout:
+    """The program to replay a run's elites in: `devices` local devices, `runs` runs trained
+    together (the run at `index`), `runs_per_step` and the bodies' `channels`; `inexact`
+    says why it is not the program that scored the archive (None where it is)."""
+
+    devices: list[Any]
+    runs: int
+    index: int
+    runs_per_step: int | None
+    channels: tuple[Any, ...]
+    inexact: str | None
+
+
+def replay_layout(run: RunRecord) -> ReplayLayout:
+    """The scoring program of `run` as environment.json records it, on this machine's
+    devices; where it cannot be built again, or would not be the same program (another
+    environment, an environment changed on resume, a run that recorded no layout), this
+    machine's default program for one run, and why its fitnesses agree to rounding only."""
+    import jax
+
+    from smol_dsl.language.channels import Channel
+    from smol_dsl.runner.layout import default_runs_per_step
+
+    local = list(jax.local_devices())
+    fallback = ReplayLayout(local, 1, 0, default_runs_per_step(local), tuple(run.channels), None)  # one run
+    recorded = latest_environment(run.directory)
+    layout = (recorded or {}).get("layout")
+    if recorded is None or not isinstance(layout, dict):
+        return dataclasses.replace(fallback, inexact="the run recorded no scoring layout (environment.json)")
+    count = int(recorded.get("devices", {}).get("count") or 0)
+    platform = recorded.get("devices", {}).get("platform")
+    if count > len(local) or platform != local[0].platform:
+        return dataclasses.replace(
+            fallback,
+            inexact=f"it was scored on {count} {platform} device(s); this machine has {len(local)} {local[0].platform}",
+        )
+    devices = local[:count]
+    differences = environment_differences(recorded, describe_environment(devices))
+    changes = read_environment_changes(run.directory)
+    inexact = (
+        f"it is replayed under another environment ({'; '.join(differences)})"
+        if differences
+        else "its environment changed when it was resumed (environment.json's changes)"
+        if changes
+        else None
+    )
+    return ReplayLayout(
+        devices=devices,
+        runs=int(layout["runs"]),
+        index=int(layout["index"]),
+        runs_per_step=layout["runs_per_step"],
+        channels=tuple(Channel.parse(name) for name in layout["channels"]),
+        inexact=inexact,
+    )
+
+
+def lane_batches(cells: Sequence[int], lanes: np.ndarray | None, batch_size: int) -> list[dict[int, int]]:
+    """The cells packed into batches, each a {lane: cell}: every cell in its own lane
+    (`lanes[cell]`) where it is known (>= 0 and in the batch), the others in free lanes;
+    no more batches than needed for the cells that share a lane."""
+    batches: list[dict[int, int]] = []
+    loose = []
+    for cell in dict.fromkeys(int(c) for c in cells):
+        lane = int(lanes[cell]) if lanes is not None else -1
+        if not 0 <= lane < batch_size:
+            loose.append(cell)
+            continue
+        batch = next((b for b in batches if lane not in b), None)
+        if batch is None:
+            batch = {}
+            batches.append(batch)
+        batch[lane] = cell
+    for cell in loose:
+        batch = next((b for b in batches if len(b) < batch_size), None)
+        if batch is None:
+            batch = {}
+            batches.append(batch)
+        batch[next(lane for lane in range(batch_size) if lane not in batch)] = cell
+    return batches
 
 
 def replay_elites(
@@ -48,45 +146,53 @@ def replay_elites(
     steps: int | None = None,
 ) -> Replay:
     """Every cell of `archive` in every body (its label, and the factor of each of the
-    schedule's channels), rolled out by the run's engine: the same batch size, devices and
-    episode start, so that in the body the archive was scored in the fitness and descriptor
-    are the archive's, bit for bit, on the device layout the run trained on. The poses come
-    from the same rollout on the same layout, recording positions; `steps` (default: the
-    run's episode length) rolls out a longer or shorter episode than the one scored."""
+    schedule's channels), rolled out by the program that scored the archive, each elite in
+    its lane (`replay_layout`, `lane_batches`): in the body the archive was scored in, the
+    fitness and descriptor are the archive's, bit for bit, wherever that program can be
+    built again (`Replay.inexact` says why not). The poses come from the same rollout
+    compiled to record positions, in the same lane; `steps` (default: the run's episode
+    length) rolls out a longer or shorter episode than the one scored. Rollouts are keyed
+    by (cell, the body's index in `bodies`)."""
     import jax
 
-    from smol_dsl.language.channels import Channel
     from smol_dsl.runner.engine import shared_engine, shared_task, stack_runs
-    from smol_dsl.runner.layout import default_runs_per_step
 
     config = run.config
-    channels = tuple(Channel.parse(name) for name in bodies[0][1])
-    devices = tuple(jax.local_devices())
+    layout = replay_layout(run)
 
     def engine_of(episode_length: int) -> Any:
         task = shared_task(config.task, episode_length, tuple(config.hidden_layer_sizes))
         shaped = dataclasses.replace(config, episode_length=episode_length)
-        return shared_engine(task, shaped, devices, default_runs_per_step(list(devices)), 1, channels)
+        return shared_engine(task, shaped, layout.devices, layout.runs_per_step, layout.runs, layout.channels)
 
     scoring = engine_of(config.episode_length)
     drawing = scoring if not steps or steps == config.episode_length else engine_of(steps)
+    runs = scoring.padded_runs(layout.runs)
     episode_start = scoring.task.episode_start(config.seed)
-    start, start_pose = stack_runs([episode_start]), np.asarray(episode_start.pipeline_state.q)
+    start, start_pose = stack_runs([episode_start] * runs), np.asarray(episode_start.pipeline_state.q)
     batch = config.batch_size
     rollouts = {}
-    for label, body in bodies:
-        factors = np.asarray([list(body.values())], dtype=np.float32)
-        for first in range(0, len(cells), batch):
-            chunk = list(cells[first : first + batch])
-            padded = chunk + [chunk[0]] * (batch - len(chunk))
-            genotypes = jax.tree.map(lambda x, index=padded: np.asarray(x)[index][None], archive.genotypes)
+    for body_index, (_, body) in enumerate(bodies):
+        row = [body.get(channel.name, 1.0) for channel in scoring.channels]
+        factors = np.asarray([row] * runs, dtype=np.float32)
+        for chunk in lane_batches(cells, archive.lanes, batch):
+            first = next(iter(chunk.values()))
+            index = [chunk.get(lane, first) for lane in range(batch)]
+            one = jax.tree.map(lambda x, index=index: np.asarray(x)[index], archive.genotypes)
+            genotypes = jax.tree.map(lambda x: np.broadcast_to(x, (runs, *x.shape)), one)
             fitnesses, descriptors = scoring.score(genotypes, factors, start)
             replayed, _, q, valid = drawing.replay(genotypes, factors, start)
-            for k, cell in enumerate(chunk):
-                rollouts[cell, label] = Rollout(
-                    fitness=float(fitnesses[0, k]),
-                    descriptor=np.asarray(descriptors[0, k]),
-                    poses=np.concatenate([start_pose[None], q[0, k][valid[0, k]]]),  # until the episode ends
-                    scored=drawing is not scoring or bool(replayed[0, k] == fitnesses[0, k]),
+            r = layout.index
+            for lane, cell in chunk.items():
+                rollouts[cell, body_index] = Rollout(
+                    fitness=float(fitnesses[r, lane]),
+                    descriptor=np.asarray(descriptors[r, lane]),
+                    poses=np.concatenate([start_pose[None], q[r, lane][valid[r, lane]]]),  # until the episode ends
+                    scored=drawing is not scoring or bool(replayed[r, lane] == fitnesses[r, lane]),
                 )
-    return Replay(model=drawing.task.env.sys.mj_model, dt=float(drawing.task.env.dt), rollouts=rollouts)
+    return Replay(
+        model=drawing.task.env.sys.mj_model,
+        dt=float(drawing.task.env.dt),
+        rollouts=rollouts,
+        inexact=layout.inexact,
+    )

@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.tasks.base import Task
 
-from smol_dsl.rundir import CHECKPOINT_FILE, describe_environment
+from smol_dsl.rundir import CHECKPOINT_FILE, describe_environment, scoring_layout
 from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_run_directory, run_name
 from smol_dsl.runner.engine import shared_engine
@@ -62,12 +62,12 @@ def run_experiment(
     check_bodies(task, [schedule])
     footprint = fit_sweep(config, 1, [config.seed], devices)  # refuses a run that cannot fit, before compiling
     run = PlannedRun(schedule, config, run_name(config.task, schedule, config.seed), directory)
+    layout = scoring_layout(1, 0, footprint.runs_per_step, [channel.name for channel in schedule.channels])
+    environment = describe_environment(devices, layout)
     with contextlib.ExitStack() as held:
         if directory is not None:  # locked until the run returns: one process at a time
             held.enter_context(
-                prepare_run_directory(
-                    directory, schedule, config, resume, describe_environment(devices), allow_environment_change
-                )
+                prepare_run_directory(directory, schedule, config, resume, environment, allow_environment_change)
             )
         engine = shared_engine(task, config, devices, footprint.runs_per_step, 1, schedule.channels)
         results = train(

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.tasks.base import Task
 
-from smol_dsl.rundir import SWEEP_CHECKPOINT_FILE, describe_environment
+from smol_dsl.rundir import SWEEP_CHECKPOINT_FILE, describe_environment, scoring_layout
 from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_sweep_directory, run_name
 from smol_dsl.runner.engine import shared_engine
@@ -105,6 +105,11 @@ def run_sweep(
         runs_per_step = footprint.runs_per_step
     index, parts = part
     checkpoint_name = SWEEP_CHECKPOINT_FILE if parts == 1 else f"sweep-checkpoint-{index}-of-{parts}.npz"
+    channels = run_channels([run.schedule for run in runs])
+    names = [channel.name for channel in channels]
+    environments = [
+        describe_environment(devices, scoring_layout(len(runs), r, runs_per_step, names)) for r in range(len(runs))
+    ]
     with contextlib.ExitStack() as held:
         if directory is not None:  # this process's run directories stay locked until it returns
             held.enter_context(
@@ -116,11 +121,10 @@ def run_sweep(
                     resume,
                     parts > 1,
                     checkpoint_name,
-                    describe_environment(devices),
+                    environments,
                     allow_environment_change,
                 )
             )
-        channels = run_channels([run.schedule for run in runs])
         engine = shared_engine(task, config, devices, runs_per_step, len(runs), channels)
         checkpoint = directory / checkpoint_name if directory is not None else None
         return train(

@@ -60,6 +60,7 @@ WALKER2D = TaskSpec(
         1000, gear=(1e-36, 1.33e22), mass=(7.5e-8, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e23)
     ),
     observation_size=17,  # the policy's input (a test builds the task and checks it)
+    step_seconds=0.008,  # the env's dt (checked alike)
     anatomy=Anatomy(
         actuators=("thigh_joint", "leg_joint", "foot_joint", "thigh_left_joint", "leg_left_joint", "foot_left_joint"),
         links=("torso", "thigh", "leg", "foot", "thigh_left", "leg_left", "foot_left"),
@@ -89,6 +90,7 @@ HALFCHEETAH = TaskSpec(
         1000, gear=(1e-36, 2.37e18), mass=(0.237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1.78e7)
     ),
     observation_size=17,  # the policy's input (a test builds the task and checks it)
+    step_seconds=0.05,  # the env's dt (checked alike)
     anatomy=Anatomy(
         actuators=("bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot"),
         links=("torso", "bthigh", "bshin", "bfoot", "fthigh", "fshin", "ffoot"),
@@ -126,6 +128,7 @@ ANT_OMNI = TaskSpec(
         100, gear=(1e-36, 4.22e20), mass=(0.00237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 4.22e7)
     ),
     observation_size=27,  # the policy's input (a test builds the task and checks it)
+    step_seconds=0.05,  # the env's dt (checked alike)
     anatomy=ANT_ANATOMY,
 )
 
@@ -147,6 +150,7 @@ HOPPER = TaskSpec(
         1000, gear=(1e-36, 1.78e22), mass=(7.5e-9, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1e36)
     ),
     observation_size=11,  # the policy's input (a test builds the task and checks it)
+    step_seconds=0.008,  # the env's dt (checked alike)
     anatomy=Anatomy(
         actuators=("thigh_joint", "leg_joint", "foot_joint"),
         links=("torso", "thigh", "leg", "foot"),
@@ -173,5 +177,6 @@ ANT_UNI = TaskSpec(
         1000, gear=(1e-36, 4.22e20), mass=(0.00562, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e7)
     ),
     observation_size=27,  # the policy's input (a test builds the task and checks it)
+    step_seconds=0.05,  # the env's dt (checked alike)
     anatomy=ANT_ANATOMY,
 )

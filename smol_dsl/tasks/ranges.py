@@ -74,6 +74,34 @@ def reaching(anatomy: Anatomy | None, channels: Sequence[Channel], kind: str, in
     return found
 
 
+def body_problem(
+    body: Mapping[Channel, float], anatomy: Anatomy | None, ranges: Mapping[str, FactorRange], task: str
+) -> str | None:
+    """What is wrong with a body (a factor per channel) for this task, in words, or None:
+    a factor that is not a finite number above 0, or an actuator's, link's or the whole
+    body's factor (the product of the channels that reach it) outside the task's range."""
+    factors = {}
+    for channel, value in body.items():
+        try:
+            factor = float(value)
+        except (TypeError, ValueError):
+            factor = math.nan
+        if isinstance(value, bool) or not (math.isfinite(factor) and factor > 0):
+            return f"{channel.name} {value!r} is not a factor: give a finite number above 0"
+        factors[channel] = factor
+    for kind, parts in resolve(anatomy, factors).items():
+        allowed = factor_range(ranges, kind)
+        for part, value in zip(resolved_names(anatomy, kind), parts, strict=True):
+            if value in allowed:
+                continue
+            what = f"the {kind} factor" if part == kind else f"{part}'s {kind} factor"
+            return (
+                f"{what} would be {value:.3g}, {'above' if value > allowed.high else 'below'} what {task}'s physics "
+                f"takes ({kind} factors from {allowed.low:g} to {allowed.high:g}, {allowed.found})"
+            )
+    return None
+
+
 def check_resolved_factors(
     schedule: Schedule, anatomy: Anatomy | None, ranges: Mapping[str, FactorRange], task: str
 ) -> None:

@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-from smol_dsl.tasks.ranges import check_resolved_factors
+from smol_dsl.tasks.ranges import body_problem, check_resolved_factors
 
 if TYPE_CHECKING:
+    from smol_dsl.language.channels import Channel
     from smol_dsl.language.schedule import Schedule
     from smol_dsl.tasks.anatomy import Anatomy
     from smol_dsl.tasks.base import Task
@@ -54,6 +55,9 @@ class TaskSpec:
     observation_size: int | None = None
     """The length of an observation, where known without building the task (archives'
     policies are checked against it)."""
+    step_seconds: float | None = None
+    """Seconds per environment step (the env's `dt`), where known without building the task
+    (`render` sizes its frames with it before rolling anything out)."""
 
     def __post_init__(self) -> None:
         if len(self.descriptor_low) != len(self.descriptor_high):
@@ -77,6 +81,12 @@ class TaskSpec:
         else:
             schedule.check_targets(anatomy.targets(), self.name, anatomy.listing())
         check_resolved_factors(schedule, anatomy, self.factor_ranges, self.name)
+
+    def body_problem(self, body: Mapping[Channel, float]) -> str | None:
+        """What is wrong with a body of this task (a factor per channel), in words, or None:
+        a factor that is not finite and above 0, or a part's resolved factor outside
+        `factor_ranges` (`tasks.ranges.body_problem`)."""
+        return body_problem(body, self.anatomy, self.factor_ranges, self.name)
 
     def make(self, **options: Any) -> Task:
         """Build the task (imports JAX and Brax); options (episode_length,
