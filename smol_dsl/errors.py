@@ -165,3 +165,8 @@ class ScheduleError(UserInputError):
         width = max(1, min(self.span.length, len(shown) - caret_at))
         prefix = "...  " if start else "     "
         return [f"{prefix}{shown}", " " * (5 + caret_at) + "^" * width]
+
+
+def counted(count: int, noun: str, plural: str | None = None) -> str:
+    """`count` and the noun in its number, for messages: "1 run", "3 runs", "1 was" / "2 were"."""
+    return f"{count} {noun if count == 1 else (plural or noun + 's')}"

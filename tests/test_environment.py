@@ -20,7 +20,7 @@ from smol_dsl.rundir import (
     read_environment,
     read_environment_changes,
 )
-from smol_dsl.rundir.environment import COMPARED
+from smol_dsl.rundir.environment import COMPARED, MISSING_RECORD
 
 
 class Device:
@@ -123,23 +123,54 @@ def test_a_resume_allowed_under_another_environment_records_the_change(small_run
     assert change["environment"]["packages"]["jax"] == jax.__version__
 
 
-def test_a_report_refuses_runs_of_different_environments(small_run, tmp_path, capsys):
-    first = copy_of(small_run, tmp_path / "runs", "walker2d-human-seed0")
+def _started_elsewhere(run):
+    _with_record(run, **{"packages.brax": "0.0.1", "processor.model": "another processor"})
+    return f"was started under another environment than {run.parent / 'walker2d-human-seed0'}", (
+        f"brax {metadata.version('brax')} -> 0.0.1"
+    )
+
+
+def _resumed_elsewhere(run):
+    path = run / ENVIRONMENT_FILE
+    data = json.loads(path.read_text())
+    data["changes"].append({"environment": data["environment"], "differences": ["devices count 2 -> 1"]})
+    path.write_text(json.dumps(data))
+    return "was resumed under another environment", "devices count 2 -> 1"
+
+
+def _without_record(run):
+    (run / ENVIRONMENT_FILE).unlink()
+    return "has no environment.json", f"unlike {run.parent / 'walker2d-human-seed0'}"
+
+
+@pytest.mark.parametrize("mix", [_started_elsewhere, _resumed_elsewhere, _without_record])
+def test_a_report_refuses_mixed_environments_and_writes_down_what_it_was_allowed(small_run, tmp_path, capsys, mix):
+    """Runs started elsewhere, resumed elsewhere, or with no record beside runs with one are
+    refused; allowed, the report's table.md and index.html say how they mix."""
+    copy_of(small_run, tmp_path / "runs", "walker2d-human-seed0")
     second = copy_of(small_run, tmp_path / "runs", "walker2d-human-seed1")
     config = json.loads((second / "config.json").read_text())
     (second / "config.json").write_text(json.dumps({**config, "seed": 1}))
-    _with_record(second, **{"packages.brax": "0.0.1", "processor.model": "another processor"})
-    code, err = cli(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "report"), "--no-gaits"], capsys)
+    what, detail = mix(second)
+    report = ["report", str(tmp_path / "runs"), "-o", str(tmp_path / "report"), "--no-gaits"]
+    code, err = cli(report, capsys)
     assert code == 2, err
-    assert f"{first} and {second} were produced under different environments" in err
-    assert f"brax {metadata.version('brax')} -> 0.0.1" in err and "processor model" in err
+    assert f"not all produced under one environment: {second} {what}" in err and detail in err, err
     assert "--allow-mixed-environments" in err and not (tmp_path / "report").exists()
-    code, err = cli(
-        ["report", str(tmp_path / "runs"), "-o", str(tmp_path / "report"), "--no-gaits", "--allow-mixed-environments"],
-        capsys,
-    )
+    code, err = cli([*report, "--allow-mixed-environments"], capsys)
     assert code == 0, err
-    assert (tmp_path / "report" / "table.md").is_file()
+    assert f"note: allowed to mix environments: {second} {what}" in err
+    for page in ("table.md", "index.html"):
+        text = (tmp_path / "report" / page).read_text()
+        assert "mixed environment" in text and what in text and "environment" in text, page
+
+
+def test_a_report_of_one_environment_names_it(small_run, tmp_path, capsys):
+    code, err = cli(["report", str(small_run), "-o", str(tmp_path / "report"), "--no-gaits"], capsys)
+    assert code == 0, err
+    table = (tmp_path / "report" / "table.md").read_text()
+    assert f"jax {jax.__version__}" in table and "mixed environment" not in table
+    assert "**budget**" in table and "**settings**" in table
 
 
 @pytest.mark.parametrize("text", ["{", "[]", '{"environment": {}}'])
@@ -148,3 +179,17 @@ def test_a_damaged_environment_json_is_named(small_run, tmp_path, capsys, text):
     (out / ENVIRONMENT_FILE).write_text(text)
     code, err = cli(["report", str(out), "-o", str(tmp_path / "report"), "--no-gaits"], capsys)
     assert code == 2 and f"{out / ENVIRONMENT_FILE}" in err, err
+
+
+def test_a_resume_without_environment_json_is_refused_unless_allowed_and_then_recorded(small_run, tmp_path, capsys):
+    out = copy_of(small_run, tmp_path)
+    (out / ENVIRONMENT_FILE).unlink()
+    code, err = cli([*RUN, "--out", str(out), "--resume"], capsys)
+    assert code == 2 and f"{out} holds no {ENVIRONMENT_FILE}" in err and "--allow-environment-change" in err, err
+    assert not (out / ENVIRONMENT_FILE).exists()
+    code, err = cli([*RUN, "--out", str(out), "--resume", "--allow-environment-change"], capsys)
+    assert code == 0, err
+    assert read_environment(out) == {}  # the start is unknown
+    (change,) = read_environment_changes(out)
+    assert change["differences"] == [MISSING_RECORD]
+    assert environment_differences(change["environment"], describe_environment(jax.local_devices())) == []

@@ -331,6 +331,32 @@ def test_damaged_run_files_are_refused(runs, tmp_path, capsys, name, content, wo
     assert not (tmp_path / "out").exists()
 
 
+def test_a_schedule_edited_after_the_run_is_refused(runs, tmp_path, capsys):
+    """certificate.json holds the digest of the text it proves: a changed number is caught
+    even where the edit still verifies and keeps the certificate's fields."""
+    path = runs / "walker2d-smol-seed0" / "schedule.sched"
+    path.write_text(path.read_text().replace("let child = 1.5", "let child = 1.4"))
+    refused(["report", str(runs), "-o", str(tmp_path / "out")], capsys, path, "not the text the run was trained on")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_run_set_up_before_the_digest_was_recorded_is_still_read(runs):
+    path = runs / "walker2d-smol-seed0" / "certificate.json"
+    certificate = json.loads(path.read_text())
+    del certificate["schedule_sha256"]
+    path.write_text(json.dumps(certificate))
+    assert read_run(path.parent).schedule == "SMOL"
+
+
+def test_a_metrics_log_of_another_final_body_is_refused(runs, tmp_path, capsys):
+    """metrics.csv's rows in the tail log the final body the schedule proves."""
+    path = runs / "walker2d-smol-seed0" / "metrics.csv"
+    rows = read_metrics(path)
+    rows[-1]["alpha"] = 1.3
+    MetricsLog(path, rows)
+    refused(["report", str(runs), "-o", str(tmp_path / "out")], capsys, f"{path}:{len(rows) + 1}: alpha is 1.3")
+
+
 def test_archive_of_the_wrong_shape_or_values_is_refused(runs, pristine, tmp_path, capsys):
     path = runs / "walker2d-vanilla-seed2" / "archive.npz"
     with np.load(path) as data:

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from smol_dsl.cli.common import EXIT_OK, UsageError, positive_int
+from smol_dsl.errors import counted
 
 if TYPE_CHECKING:
     import argparse
@@ -90,13 +91,11 @@ def write_report(args: argparse.Namespace) -> int:
         allow_mixed_environments=args.allow_mixed_environments,
     )
     table = report.table
-    print(f"{table.task}, final {table.metric} ({sum(table.runs.values())} runs):\n")
+    print(f"{table.task}, final {table.metric} ({counted(sum(table.runs.values()), 'run')}):\n")
     print(table.markdown())
-    notes = table.notes()
-    for note in notes[:3]:
+    for note in table.notes():
         print(f"note: {note}", file=sys.stderr)
-    if len(notes) > 3:
-        more = len(notes) - 3
-        print(f"note: and {more} more pair{'s' if more > 1 else ''} like these", file=sys.stderr)
+    for mixing in report.environment_mixing:
+        print(f"note: allowed to mix environments: {mixing}", file=sys.stderr)
     print(f"wrote {', '.join(str(f) for f in report.files)}")
     return EXIT_OK

@@ -15,6 +15,7 @@ written, every file is written atomically, and an earlier report is replaced onl
 from __future__ import annotations
 
 import csv
+import dataclasses
 import html
 import io
 import math
@@ -27,12 +28,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from smol_dsl.errors import UserInputError
+from smol_dsl.errors import UserInputError, counted
 from smol_dsl.results.figures import archives_figure, reevaluation_figure, results_figure
 from smol_dsl.results.paper import compare_with_paper
 from smol_dsl.rundir import (
     CONFIG_FILE,
-    ENVIRONMENT_FILE,
     METRICS_FILE,
     METRICS_SCHEMA,
     SCORES,
@@ -193,18 +193,39 @@ def _check_same_settings(runs: Sequence[RunRecord]) -> None:
 
 
 def _check_same_environment(runs: Sequence[RunRecord]) -> None:
-    """Refuse runs produced under different environments (each compiles the physics its
-    own way: the same seed trains to other numbers), naming what differs; runs that
-    recorded none are not compared."""
-    recorded = [run for run in runs if run.environment is not None]
-    for run in recorded[1:]:
-        differences = environment_differences(dict(recorded[0].environment), dict(run.environment))
-        if differences:
-            raise ReportError(
-                f"{recorded[0].directory} and {run.directory} were produced under different environments "
-                f"({ENVIRONMENT_FILE}: {'; '.join(differences)}); their numbers are not comparable in one table. "
-                "Report them apart, or pass --allow-mixed-environments to put them together anyway"
-            )
+    """Refuse runs that mixed environments (`environment_mixing`: each compiles the physics
+    its own way, so the same seed trains to other numbers), naming the first and how many."""
+    mixing = environment_mixing(runs)
+    if mixing:
+        more = f" (and {len(mixing) - 1} more)" if len(mixing) > 1 else ""
+        raise ReportError(
+            f"the runs were not all produced under one environment: {mixing[0]}{more}; their numbers are not "
+            "comparable in one table. Report them apart, or pass --allow-mixed-environments to put them together "
+            "anyway (the report then lists every difference)"
+        )
+
+
+def environment_mixing(runs: Sequence[RunRecord]) -> list[str]:
+    """Every way the runs' environments (environment.json) differ, one sentence each: a run
+    started under another record than the first run that has one, a run resumed under another
+    environment (its recorded changes), and a run with no record, or one whose start is unknown,
+    beside runs that have one. Empty when the runs share one record (or none has any)."""
+    recorded = [run for run in runs if run.environment]
+    mixing = []
+    for run in runs:
+        if not run.environment and recorded:
+            what = "has no environment.json" if run.environment is None else "was started under an unknown environment"
+            mixing.append(f"{run.directory} {what}, unlike {recorded[0].directory}")
+        elif run.environment and run is not recorded[0]:
+            differences = environment_differences(dict(recorded[0].environment), dict(run.environment))
+            if differences:
+                mixing.append(
+                    f"{run.directory} was started under another environment than {recorded[0].directory} "
+                    f"({'; '.join(differences)})"
+                )
+        for change in run.environment_changes:
+            mixing.append(f"{run.directory} was resumed under another environment ({'; '.join(change['differences'])})")
+    return mixing
 
 
 def _group_by_schedule(runs: Sequence[RunRecord]) -> dict[str, list[RunRecord]]:
@@ -300,16 +321,31 @@ class PValueTable:
     pvalues: dict[str, dict[str, float | None]]
 
     def notes(self) -> list[str]:
-        """Warnings about the table's power: with few runs no p-value can fall below 0.05."""
-        notes = []
+        """Warnings about the table's power: with few runs no p-value can fall below 0.05.
+        One note per pair of run counts, naming the pairs it concerns (or saying all do)."""
+        by_counts: dict[tuple[int, int], list[str]] = {}
+        pairs = 0
         for row in self.rows:
             for column in self.columns:
-                if row != column and smallest_p(self.runs[column], self.runs[row]) >= SIGNIFICANCE:
-                    notes.append(
-                        f"{column} ({self.runs[column]} runs) vs {row} ({self.runs[row]} runs): the smallest "
-                        f"possible p-value is {smallest_p(self.runs[column], self.runs[row]):.3g}, so this pair "
-                        f"cannot reach p < {SIGNIFICANCE}; run more seeds (the paper used 7 to 10)"
-                    )
+                if row == column:
+                    continue
+                pairs += 1
+                if smallest_p(self.runs[column], self.runs[row]) >= SIGNIFICANCE:
+                    counts = tuple(sorted((self.runs[column], self.runs[row])))
+                    by_counts.setdefault(counts, []).append(f"{column} vs {row}")
+        notes = []
+        for (fewer, more), names in by_counts.items():
+            runs = f"{counted(fewer, 'run')} each" if fewer == more else f"{fewer} and {counted(more, 'run')}"
+            which = (
+                "every pair"
+                if len(names) == pairs
+                else ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+            )
+            notes.append(
+                f"{which}: with {runs} the smallest possible p-value is {smallest_p(fewer, more):.3g}, so "
+                f"{'it cannot' if len(names) == 1 else 'none can'} reach p < {SIGNIFICANCE}; run more seeds (the paper "
+                "used 7 to 10)"
+            )
         return notes
 
     @property
@@ -444,6 +480,58 @@ def median_run(runs: Sequence[RunRecord], metric: str) -> RunRecord:
     return ranked[(len(ranked) - 1) // 2]
 
 
+# ---------------------------------------------------------------------------- what ran
+def runs_described(groups: Mapping[str, Sequence[RunRecord]]) -> list[tuple[str, str]]:
+    """What the report's runs are, as (heading, text) lines for table.md and index.html: the
+    runs and seeds, their shared settings and budget, the environment they ran under, and
+    every way their environments differ (`environment_mixing`, which `--allow-mixed-environments`
+    let through)."""
+    runs = [run for group in groups.values() for run in group]
+    config = runs[0].config
+    seeds = sorted({run.seed for run in runs})
+    seeds_text = ", ".join(str(seed) for seed in seeds[:10]) + (f" .. {seeds[-1]}" if len(seeds) > 10 else "")
+    lines = [
+        (
+            "runs",
+            f"{counted(len(runs), 'run')} of {config.task}: {counted(len(groups), 'schedule')} x "
+            f"{counted(len(seeds), 'seed')} ({seeds_text})",
+        ),
+        (
+            "budget",
+            f"{config.evaluations:,} evaluations per run ({config.generations:,} generations of {config.batch_size:,} "
+            f"after the initial population) in {counted(config.num_phases, 'phase')}, episodes of "
+            f"{config.episode_length:,} steps; re-evaluations at phase boundaries counted apart",
+        ),
+        (
+            "settings",
+            f"preset {config.preset}; {config.num_centroids:,} cells ({config.num_init_cvt_samples:,} CVT samples); "
+            f"policy hidden layers {list(config.hidden_layer_sizes)}; iso sigma {config.iso_sigma:g}, line sigma "
+            f"{config.line_sigma:g}",
+        ),
+    ]
+    recorded = next((run.environment for run in runs if run.environment), None)
+    lines.append(("environment", _environment_line(recorded) if recorded else "not recorded (no environment.json)"))
+    lines += [("mixed environment", text) for text in environment_mixing(runs)]
+    return lines
+
+
+def _environment_line(environment: Mapping[str, object]) -> str:
+    """An environment.json record in one line: Python, smol-dsl and its commit, the numerical
+    packages, the devices and the processor."""
+    packages = environment.get("packages") or {}
+    devices = environment.get("devices") or {}
+    processor = environment.get("processor") or {}
+    versions = ", ".join(f"{name} {version}" for name, version in dict(packages).items() if version)
+    kinds = ", ".join(dict(devices).get("kinds") or []) or "?"
+    extensions = ", ".join(dict(processor).get("vector_extensions") or []) or "none recorded"
+    return (
+        f"Python {environment.get('python')}, smol-dsl {environment.get('smol_dsl')} (commit "
+        f"{environment.get('commit') or 'unknown'}), {versions}; {dict(devices).get('count')} "
+        f"{dict(devices).get('platform')} device(s) ({kinds}); processor {dict(processor).get('model')} "
+        f"({extensions})"
+    )
+
+
 # ---------------------------------------------------------------------------- report
 @dataclass(frozen=True)
 class Report:
@@ -452,6 +540,7 @@ class Report:
     table: PValueTable
     files: list[Path]
     comparison: Comparison | None = None  # beside the paper's table, for its tasks and metrics
+    environment_mixing: list[str] = dataclasses.field(default_factory=list)  # allowed, and written in the report
 
 
 def earlier_report(out_dir: str | Path) -> list[str]:
@@ -466,6 +555,11 @@ def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str
     """Refuse (ReportError) an output directory that is a file, cannot be made or written,
     or holds an earlier report (unless `force`). Returns the earlier report's files."""
     out = Path(out_dir)
+    if is_run_directory(out):
+        raise ReportError(
+            f"{out} is a run directory (it holds a run's {CONFIG_FILE} or {METRICS_FILE}); a report goes into "
+            "a directory of its own: give another -o"
+        )
     if out.exists() and not out.is_dir():
         raise ReportError(
             f"{out} is a file, not a directory: the report is several files (table.md, pvalues.tex, scores.csv, "
@@ -511,7 +605,10 @@ def render_report(
         f"{table.task} ({label}): median final scores and p-values of one-sided Mann-Whitney U tests, with "
         f"the alternative that the column schedule is better than the row schedule; p < {SIGNIFICANCE} in bold."
     )
-    files["table.md"] = f"{caption}\n\n{table.markdown()}".encode()
+    described = runs_described(groups)
+    what_ran = "\n".join(f"- **{heading}**: {_markdown_escape(text)}" for heading, text in described)
+    notes = "".join(f"\n- note: {note}" for note in table.notes())
+    files["table.md"] = f"{caption}\n\n{table.markdown()}{notes}\n\n## What ran\n\n{what_ran}\n".encode()
     files["pvalues.tex"] = f"% {caption}\n{table.latex()}".encode()
     scores = io.StringIO(newline="")
     writer = csv.writer(scores)
@@ -523,21 +620,36 @@ def render_report(
     if comparison is not None:  # a task and metric of the paper's table
         files["paper-comparison.md"] = comparison.markdown().encode()
         files["paper-comparison.tex"] = comparison.latex().encode()
-    figures = {}
+    figures, captions = {}, {}
     for stem, names in figure_groups(list(groups)).items():
         what = "main results" if stem == "main-results" else "ablations"
         figures[stem] = results_figure(groups, names, f"{table.task}: {what} (median and IQR over seeds)")
+        captions[stem] = (
+            f"{what.capitalize()}: max fitness, coverage and QD score of {', '.join(names)} against training "
+            "evaluations, the median (line) and interquartile range (band) over seeds; the dashed line is where "
+            "every schedule shown has its final body for good."
+        )
     low, high = descriptor_bounds(table.task)
     if low:  # each schedule's run with the median final score, side by side
         chosen = {name: median_run(runs, table.metric) for name, runs in groups.items()}
         panels = [(name, run.seed, run.final_archive()) for name, run in chosen.items()]
         by = table.metric.replace("_", " ")
         figures["archives"] = archives_figure(panels, low, high, f"{table.task}: final archives (median run by {by})")
+        captions["archives"] = (
+            f"Final archives: each schedule's run with the median final {by} ("
+            + ", ".join(f"{name} seed {run.seed}" for name, run in chosen.items())
+            + "), every cell's elite coloured by its fitness."
+        )
     reevaluation = reevaluation_figure(
         groups, f"{table.task}: what each re-evaluation kept (median and IQR over seeds)"
     )
     if reevaluation is not None:  # runs that count their re-evaluations
         figures["reevaluation"] = reevaluation
+        captions["reevaluation"] = (
+            "Re-evaluations: at every phase boundary, the elites that kept their own cell and the cells filled "
+            "after re-evaluating the archive in the new body, in % of the cells filled before (median and "
+            "interquartile range over seeds)."
+        )
     for stem, figure in figures.items():
         for suffix in ("png", "pdf"):
             image = io.BytesIO()
@@ -545,7 +657,9 @@ def render_report(
             files[f"{stem}.{suffix}"] = image.getvalue()
     shown = gait_files(groups, table.metric, gaits, replay) if gaits > 0 else []
     files.update({name: data for name, data, _ in shown})
-    files["index.html"] = index_page(table, caption, [stem for stem in figures], shown)
+    files["index.html"] = index_page(
+        table, caption, [(stem, captions[stem]) for stem in figures], shown, described, comparison is not None
+    )
     return files
 
 
@@ -576,21 +690,38 @@ def gait_files(
 
 
 def index_page(
-    table: PValueTable, caption: str, figures: Sequence[str], gaits: Sequence[tuple[str, bytes, str]]
+    table: PValueTable,
+    caption: str,
+    figures: Sequence[tuple[str, str]],
+    gaits: Sequence[tuple[str, bytes, str]],
+    described: Sequence[tuple[str, str]] = (),
+    compared_with_paper: bool = False,
 ) -> bytes:
-    """index.html: the table, the figures and the gaits, every image a file beside it (no
-    script, style sheet or font from anywhere)."""
+    """index.html: the table, what ran (`runs_described`), the figures (stem, caption) and
+    the gaits, every image and link a file beside it (no script, style sheet or font from
+    anywhere)."""
     esc = html.escape
     images = "\n".join(
-        f'<figure><img src="{esc(stem)}.png" alt="{esc(stem)}" style="max-width: 100%">'
-        f"<figcaption>{esc(stem)}</figcaption></figure>"
-        for stem in figures
+        f'<figure id="{esc(stem)}"><img src="{esc(stem)}.png" alt="{esc(text)}" style="max-width: 100%">'
+        f'<figcaption>{esc(text)} (<a href="{esc(stem)}.pdf">PDF</a>)</figcaption></figure>'
+        for stem, text in figures
     )
     moving = "\n".join(
         f'<figure><img src="{esc(name)}" alt="{esc(text)}"><figcaption>{esc(text)}</figcaption></figure>'
         for name, _, text in gaits
     )
     notes = "".join(f"<li>{esc(note)}</li>" for note in table.notes())
+    ran = "".join(f"<li><b>{esc(heading)}</b>: {esc(text)}</li>" for heading, text in described)
+    links = [
+        '<a href="table.md">table.md</a>',
+        '<a href="pvalues.tex">pvalues.tex</a>',
+        '<a href="scores.csv">scores.csv</a>',
+    ]
+    if compared_with_paper:
+        links += [
+            '<a href="paper-comparison.md">paper-comparison.md</a> (these p-values beside the paper\'s)',
+            '<a href="paper-comparison.tex">paper-comparison.tex</a>',
+        ]
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{esc(table.task)}: smol-dsl report</title></head>
 <body style="font-family: sans-serif; max-width: 1400px">
@@ -598,11 +729,12 @@ def index_page(
 <p>{esc(caption)}</p>
 {table.html()}
 {f"<ul>{notes}</ul>" if notes else ""}
+<h2>What ran</h2>
+<ul id="what-ran">{ran}</ul>
 <h2>Figures</h2>
 {images}
 {f"<h2>Gaits</h2>{moving}" if gaits else ""}
-<p>Also here: <a href="table.md">table.md</a>, <a href="pvalues.tex">pvalues.tex</a>,
-<a href="scores.csv">scores.csv</a>.</p>
+<p>Also here: {", ".join(links)}.</p>
 </body></html>
 """
     return page.encode("utf-8")
@@ -673,4 +805,4 @@ def write_report(
     comparison = compare_with_paper(table, groups)
     files = render_report(groups, table, gaits, comparison, replay)
     written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
-    return Report(table, written, comparison)
+    return Report(table, written, comparison, environment_mixing([run for runs in groups.values() for run in runs]))

@@ -3,6 +3,7 @@ final body it ends on; written when the run is set up, read by `report`."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -17,15 +18,29 @@ if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
 
 
+def source_digest(source: str) -> str:
+    """The SHA-256 of a schedule file's text (UTF-8), in hex: what certificate.json proves."""
+    return hashlib.sha256(source.encode("utf-8")).hexdigest()
+
+
 def certificate_record(schedule: Schedule) -> dict[str, Any]:
-    """certificate.json's contents: the schedule's name, where its final-body tail starts (the
-    latest of its channels'), plain gear's certificate, its final body and every channel's
-    certificate."""
-    record = {"name": schedule.name, "tail_start": float(schedule.tail_start), **schedule.certificate.to_dict()}
+    """certificate.json's contents: the schedule's name, the digest of the text it proves
+    (`source_digest`), where its final-body tail starts (the latest of its channels'), plain
+    gear's certificate, its final body and every channel's certificate."""
+    record = {
+        "name": schedule.name,
+        SOURCE_DIGEST: source_digest(schedule.source),
+        "tail_start": float(schedule.tail_start),
+        **schedule.certificate.to_dict(),
+    }
     record["tail_start"] = float(schedule.tail_start)  # the schedule's (every channel's), not plain gear's
     record["final_body"] = {channel.name: value for channel, value in schedule.final_body.items()}
     record["channels"] = {channel.name: cert.to_dict() for channel, cert in schedule.certificates.items()}
     return record
+
+
+SOURCE_DIGEST = "schedule_sha256"
+"""certificate.json's entry for the digest of schedule.sched's text."""
 
 
 def certificate_text(schedule: Schedule) -> str:
@@ -41,6 +56,7 @@ class CertificateRecord:
     tail_start: float  # where every channel is at its final value for good
     final_body: dict[str, float]  # the channels whose final factor is not 1, by name
     channels: tuple[Channel, ...]  # the scheduled channels, in declared order
+    source_digest: str | None = None  # schedule.sched's SHA-256 (None: a run set up before it was recorded)
 
 
 def read_certificate(path: Path) -> CertificateRecord:
@@ -72,5 +88,10 @@ def read_certificate(path: Path) -> CertificateRecord:
         raise RunDirectoryError(f'{path}: "channels" names {error}; {fix}') from None
     if not channels:
         raise RunDirectoryError(f'{path}: "channels" must name the schedule\'s channels; {fix}')
+    digest = data.get(SOURCE_DIGEST)
+    if digest is not None and not (
+        isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)
+    ):
+        raise RunDirectoryError(f'{path}: "{SOURCE_DIGEST}" must be a SHA-256 in hex (64 digits); {fix}')
     body = {str(channel): float(value) for channel, value in final.items() if value != 1}
-    return CertificateRecord(name, float(tail), body, channels)
+    return CertificateRecord(name, float(tail), body, channels, digest)

@@ -19,9 +19,16 @@ from smol_dsl.errors import ScheduleError
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.language.schedule import parse
 from smol_dsl.rundir.archive import FinalArchive, read_final_archive
-from smol_dsl.rundir.certificate import CertificateRecord, certificate_record, certificate_text, read_certificate
+from smol_dsl.rundir.certificate import (
+    SOURCE_DIGEST,
+    CertificateRecord,
+    certificate_record,
+    certificate_text,
+    read_certificate,
+    source_digest,
+)
 from smol_dsl.rundir.config import RunConfig, read_config
-from smol_dsl.rundir.environment import environment_text, read_environment
+from smol_dsl.rundir.environment import environment_text, read_environment, read_environment_changes
 from smol_dsl.rundir.files import read_text, write_text
 from smol_dsl.rundir.layout import (
     CERTIFICATE_FILE,
@@ -33,7 +40,13 @@ from smol_dsl.rundir.layout import (
     RunDirectoryError,
     leave_out,
 )
-from smol_dsl.rundir.metrics import final_body_evaluations, first_tail_phase, metrics_schema, read_metrics
+from smol_dsl.rundir.metrics import (
+    column_name,
+    final_body_evaluations,
+    first_tail_phase,
+    metrics_schema,
+    read_metrics,
+)
 from smol_dsl.tasks import task_spec
 from smol_dsl.tasks.anatomy import resolve
 
@@ -85,7 +98,10 @@ class RunRecord:
     """The final body resolved per part (`tasks.anatomy.resolve`): each actuator's gear and
     link's mass factor, friction's and gravity's; a kind left out is 1 throughout."""
     environment: Mapping[str, Any] | None = None
-    """What the run was started under (environment.json; None where the run recorded none)."""
+    """What the run was started under (environment.json; None where the run recorded none,
+    empty where it was resumed without one and its start is unknown)."""
+    environment_changes: tuple[Mapping[str, Any], ...] = ()
+    """The environments it was resumed under since (each with its `differences`)."""
 
     @property
     def task(self) -> str:
@@ -137,10 +153,12 @@ def read_run(directory: Path) -> RunRecord:
     config = read_config(directory / CONFIG_FILE)
     certificate = read_certificate(directory / CERTIFICATE_FILE)
     source = read_text(directory / SCHEDULE_FILE)
+    _check_source(directory, certificate, source)
     schedule = _schedule_of(directory, source, config)
     final_body = {channel.name: value for channel, value in schedule.final_body.items() if value != 1}
     _check_certificate(directory, certificate, schedule, final_body)
     rows = read_metrics(directory / METRICS_FILE, config, metrics_schema(schedule.channels))
+    _check_tail_rows(directory, rows, schedule, config.num_phases)
     run = RunRecord(
         directory,
         config,
@@ -152,6 +170,7 @@ def read_run(directory: Path) -> RunRecord:
         channels=schedule.channels,
         body=resolve(task_spec(config.task).anatomy, schedule.final_body),
         environment=read_environment(directory),
+        environment_changes=tuple(read_environment_changes(directory)),
     )
     if run.finished:
         run = dataclasses.replace(run, archive=read_final_archive(directory, config))
@@ -216,6 +235,34 @@ def _schedule_of(directory: Path, source: str, config: RunConfig) -> Schedule:
             f"{first} (the task of {CONFIG_FILE}); the two files are from different runs: {fix}"
         ) from None
     return parsed
+
+
+def _check_source(directory: Path, certificate: CertificateRecord, source: str) -> None:
+    """schedule.sched is the text certificate.json proves (its SHA-256); a run set up before
+    the digest was recorded is checked by what its certificate says instead."""
+    if certificate.source_digest is not None and certificate.source_digest != source_digest(source):
+        raise RunDirectoryError(
+            f"{directory / SCHEDULE_FILE}: it is not the text the run was trained on ({CERTIFICATE_FILE}'s "
+            f"{SOURCE_DIGEST} differs): it was edited after the run was set up. Restore it, rerun the run, or "
+            f"{leave_out(directory)}"
+        )
+
+
+def _check_tail_rows(directory: Path, rows: list[dict[str, Any]], schedule: Schedule, num_phases: int) -> None:
+    """metrics.csv's rows in the final-body tail log the schedule's final body (each channel's
+    column its final factor, to float32 rounding): a log of another schedule is caught
+    without recomputing its phases."""
+    first_tail = first_tail_phase(float(schedule.tail_start), num_phases)
+    for channel, final in schedule.final_body.items():
+        column = column_name(channel)
+        for number, row in enumerate(rows, start=2):
+            if row["phase"] < first_tail or math.isclose(row[column], final, rel_tol=1e-6):
+                continue
+            raise RunDirectoryError(
+                f"{directory / METRICS_FILE}:{number}: {column} is {row[column]:g} in phase {row['phase']}, where "
+                f"{SCHEDULE_FILE} is at its final body ({column} {final:g}); the files are from different runs, or "
+                f"one was edited: rerun the run, {leave_out(directory)}"
+            )
 
 
 def _check_certificate(
