@@ -45,20 +45,21 @@ def default_key(key: jax.Array | None) -> jax.Array:
     return jax.random.key(0) if key is None else check_key(key)
 
 
-def check_key(key: jax.Array | None) -> jax.Array | None:
-    """`key` (None too), or a TypeError for what is not one JAX random key: a typed key
-    (`jax.random.key(seed)`) or a raw one (`jax.random.PRNGKey(seed)`, uint32[2])."""
+def check_key(key: jax.Array | None, *, none_allowed: bool = True) -> jax.Array | None:
+    """`key` (None too, where `none_allowed`), or a TypeError for what is not one JAX random
+    key: a typed key (`jax.random.key(seed)`) or a raw one (`jax.random.PRNGKey(seed)`, uint32[2])."""
     import jax
     import jax.numpy as jnp
 
-    if key is None:
+    if key is None and none_allowed:
         return None
     dtype, shape = getattr(key, "dtype", None), getattr(key, "shape", None)
     if dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) and shape == ():
         return key
     if dtype == jnp.uint32 and shape == (2,):  # a raw key, as jax.random.PRNGKey gives
         return key
-    raise TypeError(f"key is one JAX random key, e.g. jax.random.key(0) (None: that default), not {_shown(key)}")
+    default = " (None: that default)" if none_allowed else ""
+    raise TypeError(f"key is one JAX random key, e.g. jax.random.key(0){default}, not {_shown(key)}")
 
 
 def _shown(value: Any) -> str:

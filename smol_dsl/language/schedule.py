@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from smol_dsl.errors import ScheduleError, Span
+from smol_dsl.errors import Message, ScheduleError, Setting, Span
 from smol_dsl.language.assembly import parse_program
 from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel, differing_finals
 from smol_dsl.language.compiler import compile_program
@@ -239,6 +239,25 @@ class Schedule:
         """How many of `num_phases` equal phases lie wholly inside every channel's tail."""
         check_phases(num_phases)
         return num_phases - math.ceil(self.tail_start * num_phases)
+
+    def tail_problem(self, num_phases: int) -> Message | None:
+        """Why `num_phases` cannot train this schedule to its end (no phase lies wholly in
+        its final-body tail, so the last phase is not the final body), naming the setting
+        `num_phases` and the fewest phases that can; None when they can."""
+        if self.tail_phases(num_phases) >= 1:
+            return None
+        least = next(n for n in range(1, 100_001) if self.tail_phases(n) >= 1)
+        return (
+            f"with {num_phases} phases no phase lies wholly in the final-body tail of {self.name} "
+            f"(from {float(self.tail_start):.0%}), so the run would not end on its final body; use "
+            + Setting("num_phases")
+            + f" {least} or more"
+        )
+
+    @property
+    def is_random(self) -> bool:
+        """Whether a segment of any channel draws random values (from the run's key)."""
+        return any(segment.draws is not None for curve in self._curves.values() for segment in curve.segments)
 
     # ------------------------------------------------------------------ plain gear: the paper's alpha
     # The front door for plain gear: each is `curve(GEAR)`'s, the same per-channel evaluation

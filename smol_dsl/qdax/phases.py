@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from smol_dsl.errors import ScheduleError
+from smol_dsl.language.curve import check_key, check_phases
 from smol_dsl.qdax.scoring import as_schedule
 
 if TYPE_CHECKING:
@@ -20,11 +21,24 @@ def phase_bodies(
 ) -> jax.Array:
     """The body of every phase, (num_phases, C) float32 (the schedule's channels, in its
     order): the bodies `score` takes, those `smol-dsl run` trains in. `smol-dsl run --seed S`
-    draws a schedule's random segments from `schedule_key(S)`; `key` may be None for a
-    schedule without random draws. A ValueError for a value that is not finite and positive."""
+    draws a schedule's random segments from `schedule_key(S)`, so a schedule with random
+    segments needs `key`; one without takes None.
+
+    Refused as `smol-dsl run` refuses them (ValueError): `num_phases` that leave no phase
+    wholly in the schedule's final-body tail (training would not end on its final body), a
+    random schedule without `key`, and a value that is not finite and positive."""
     schedule = as_schedule(schedule)
+    check_phases(num_phases)
+    tail = schedule.tail_problem(num_phases)
+    if tail is not None:
+        raise ValueError(str(tail))
+    if key is None and schedule.is_random:
+        raise ValueError(
+            f"{schedule.name} draws random segments, so its bodies depend on the key: give key=schedule_key(seed) "
+            "for those `smol-dsl run --seed seed` trains in"
+        )
     try:
-        values = schedule.checked_phase_values(num_phases, key)
+        values = schedule.checked_phase_values(num_phases, check_key(key))
     except ScheduleError as error:
         raise ValueError(str(error)) from None
     return jnp.asarray(values, jnp.float32)

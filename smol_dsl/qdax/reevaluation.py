@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from smol_dsl.language.curve import check_key
 from smol_dsl.qdax.scoring import LANE, drop_non_finite, lanes
 
 if TYPE_CHECKING:
@@ -179,9 +180,11 @@ def reevaluate(
     fresh repertoire on the same centroids (collisions keep the best; non-finite results are
     dropped). Runs outside jit, `batch_size` elites per compiled program; with the run's
     batch size and the key of `key, sub = split(key)` at the boundary it is `smol-dsl run`'s
-    re-evaluation. A repertoire left empty must be reseeded before the next `emit`."""
+    re-evaluation. A repertoire left empty must be reseeded before the next `emit`. A key
+    that is not one JAX random key is a TypeError."""
     if not 0.0 <= float(extinction) <= 1.0:
         raise ValueError(f"extinction {extinction!r}: a probability from 0 to 1")
+    check_key(key, none_allowed=False)
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size {batch_size!r}: a whole number of elites per program, at least 1")
     filled = filled_cells(repertoire)

@@ -158,7 +158,9 @@ def scoring_function(
                                                           metrics).update(r, e, k))
 
     A ValueError for a task the schedule's channels do not fit (`smol-dsl check --task`),
-    and, when called, for a body of the wrong shape or genotypes of other policies.
+    and, when called, for a body of the wrong shape, a concrete body with a factor that is
+    not finite and above 0 or outside what the task's physics takes (`check_body`, as `run`
+    and `render` refuse it; a traced body is not looked at), or genotypes of other policies.
     """
     schedule = as_schedule(schedule)
     task = task_for(task, schedule)
@@ -182,12 +184,24 @@ def scoring_function(
                 f"body of shape {jnp.shape(body)}: a body of {task.name} under this schedule is a ({size},) array, "
                 f"one factor per channel ({names}): a row of phase_bodies(schedule, num_phases, key)"
             )
+        if not isinstance(body, jax.core.Tracer):
+            check_body(task, body)
         policies = as_policies(task, genotypes)
         traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((policies, body)))
         return (nested if traced else alone)(policies, jnp.asarray(body, jnp.float32))
 
     score.compiler_options = options  # type: ignore[attr-defined]  # for `reevaluate`'s program
     return score
+
+
+def check_body(task: Task, body: Any) -> None:
+    """A ValueError for a concrete body (a factor per channel of `task`) that `smol-dsl`
+    refuses: a factor that is not finite and above 0, or a part's factor outside the range
+    the task's physics takes (`TaskSpec.body_problem`)."""
+    values = np.asarray(body, dtype=np.float64).reshape(-1)
+    problem = task.spec.body_problem(dict(zip(task.channels, values.tolist(), strict=True)))
+    if problem is not None:
+        raise ValueError(f"body {values.tolist()}: {problem}")
 
 
 def compiler_options(task: Task | str) -> dict[str, str] | None:
@@ -230,9 +244,20 @@ def run_start(
 ) -> RunStart:
     """The key, centroids and initial population of `smol-dsl run --seed seed`, so that a
     QDax loop given them (and then `key, sub = split(key)` per generation) follows the same
-    random streams."""
+    random streams. Counts `smol-dsl run` refuses are refused alike (ValueError): a
+    `batch_size` below 1, `num_centroids` below 2, fewer CVT samples than centroids."""
     from qdax.core.containers.mapelites_repertoire import compute_cvt_centroids
 
+    for name, value, least in (("batch_size", batch_size, 1), ("num_centroids", num_centroids, 2)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"{name} is a whole number, not {value!r}")
+        if value < least:
+            raise ValueError(f"{name} must be at least {least}, not {value}")
+    if num_init_cvt_samples < num_centroids:
+        raise ValueError(
+            f"num_init_cvt_samples must be at least num_centroids ({num_centroids}), not {num_init_cvt_samples}: "
+            "each cell's centroid is a mean of samples"
+        )
     task = as_task(task)
     key, cvt_key, init_key = jax.random.split(jax.random.key(check_seed(seed, "seed")), 3)
     centroids = compute_cvt_centroids(

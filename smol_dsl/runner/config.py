@@ -42,6 +42,13 @@ def check_config(config: RunConfig, schedule: Schedule) -> None:
         value = getattr(config, name)
         if value < least:
             raise ConfigError(Setting(name) + f" must be at least {least}, not {value}")
+    if config.num_init_cvt_samples < config.num_centroids:
+        raise ConfigError(
+            Setting("num_init_cvt_samples")
+            + " must be at least "
+            + Setting("num_centroids")
+            + f" ({config.num_centroids}), not {config.num_init_cvt_samples}: each cell's centroid is a mean of samples"
+        )
     if config.generations < config.num_phases:
         need = (config.num_phases + 1) * config.batch_size
         raise ConfigError(
@@ -54,13 +61,9 @@ def check_config(config: RunConfig, schedule: Schedule) -> None:
             + ", or a smaller "
             + Setting("batch_size")
         )
-    if schedule.tail_phases(config.num_phases) < 1:
-        least = next(n for n in range(1, 100_001) if schedule.tail_phases(n) >= 1)
-        raise ConfigError(
-            f"with {config.num_phases} phases no phase lies wholly in the final-body tail of {schedule.name} "
-            f"(from {float(schedule.tail_start):.0%}), so the run would not end on its final body; "
-            "use " + Setting("num_phases") + f" {least} or more"
-        )
+    tail = schedule.tail_problem(config.num_phases)
+    if tail is not None:
+        raise ConfigError(tail)
     # The certificates prove every phase's factors finite and positive in float32; evaluate
     # the table anyway before anything is created, so a defect can never waste a run (a
     # ScheduleError naming the file and the phase).

@@ -26,7 +26,7 @@ from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_run_directory, run_name
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import fit_sweep
-from smol_dsl.runner.training import PlannedRun, RunResult, check_bodies, schedule_key, train
+from smol_dsl.runner.training import PlannedRun, RunResult, check_runs, schedule_key, train
 
 __all__ = ["RunError", "RunResult", "run_experiment", "schedule_key"]
 
@@ -53,13 +53,14 @@ def run_experiment(
     The run records what it runs under (environment.json); resuming under another
     environment is refused unless `allow_environment_change`.
     A directory that cannot be used, a damaged checkpoint or a disk that cannot be written
-    is a RunError that names the file and says what to do; a schedule whose channels name
-    parts the task's body lacks, a located ScheduleError.
+    is a RunError that names the file and says what to do; settings `smol-dsl run` refuses,
+    a ConfigError naming the fields (`check_config`); a schedule whose channels name parts
+    the task's body lacks, a located ScheduleError. All are raised before anything is written.
     """
     started = time.perf_counter()
     directory = out_path(out_dir)
     devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
-    check_bodies(task, [schedule])
+    check_runs(task, [schedule], config)
     footprint = fit_sweep(config, 1, [config.seed], devices)  # refuses a run that cannot fit, before compiling
     run = PlannedRun(schedule, config, run_name(config.task, schedule, config.seed), directory)
     layout = scoring_layout(1, 0, footprint.runs_per_step, [channel.name for channel in schedule.channels])

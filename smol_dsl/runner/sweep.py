@@ -28,7 +28,7 @@ from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_sweep_directory, run_name
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import fit_sweep
-from smol_dsl.runner.training import PlannedRun, Progress, RunResult, check_bodies, run_channels, train
+from smol_dsl.runner.training import PlannedRun, Progress, RunResult, check_runs, run_channels, train
 
 
 def plan_sweep(schedules: Sequence[Schedule], seeds: Sequence[int], config: RunConfig) -> list[PlannedRun]:
@@ -99,7 +99,7 @@ def run_sweep(
         every = [dataclasses.replace(run, directory=directory / run.name) for run in every]
     runs = sweep_part(every, part)
     devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
-    check_bodies(task, list(schedules))
+    check_runs(task, list(schedules), config)
     footprint = fit_sweep(config, len(schedules), seeds, devices, runs_per_step, part)  # before compiling
     if runs_per_step == -1:
         runs_per_step = footprint.runs_per_step

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from smol_dsl import rundir
+from smol_dsl.errors import Setting
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.rundir import CHECKPOINT_FILE, MetricsLog
 from smol_dsl.runner.checkpoint import (
@@ -40,7 +41,7 @@ from smol_dsl.runner.checkpoint import (
     stacked_checkpoint,
     storage_error,
 )
-from smol_dsl.runner.config import RunError
+from smol_dsl.runner.config import ConfigError, RunError, check_config
 from smol_dsl.runner.engine import stack_runs
 from smol_dsl.runner.map_elites import cvt_centroids
 from smol_dsl.seeds import schedule_key
@@ -101,12 +102,26 @@ def run_channels(schedules: list[Schedule]) -> tuple[Channel, ...]:
     return tuple(dict.fromkeys(channel for schedule in schedules for channel in schedule.channels))
 
 
-def check_bodies(task: Task | str, schedules: list[Schedule]) -> None:
-    """A located ScheduleError for a schedule whose channels name actuators or links the
-    task's body lacks (before anything is created or compiled)."""
+def check_runs(task: Task | str, schedules: list[Schedule], config: RunConfig) -> None:
+    """What `smol-dsl run` and `sweep` refuse, refused for the Python API alike, before anything
+    is created or compiled: a located ScheduleError for a schedule whose channels name parts
+    the task's body lacks, a ConfigError (`check_config`) for settings that cannot make a fair
+    run, and one for a task that is not the config's (its name or episode length)."""
     spec = task_spec(task) if isinstance(task, str) else task.spec
+    if spec.name != config.task:
+        raise ConfigError(
+            f"the task is {spec.name} but the config's is {config.task}; make the config for {spec.name} "
+            f"(preset_config({spec.name!r}, ...)) or pass task={config.task!r}"
+        )
+    if not isinstance(task, str) and task.episode_length != config.episode_length:
+        raise ConfigError(
+            f"the task's episodes are {task.episode_length} steps but the config's "
+            + Setting("episode_length")
+            + f" is {config.episode_length}; build the task with the config's, or pass the task by name"
+        )
     for schedule in schedules:
         spec.check_schedule(schedule)
+        check_config(config, schedule)
 
 
 def owner(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
