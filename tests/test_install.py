@@ -1,4 +1,5 @@
-"""A non-editable install ships the grammar and the schedule library inside the package."""
+"""A non-editable install ships the grammar, the schedule library and the commit it was built
+from inside the package."""
 
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ assert str(library.library_dir()).startswith({site!r}), library.library_dir()
 assert smol_dsl.library_names() == {library!r}, smol_dsl.library_names()
 print(smol_dsl.load("human").name, float(smol_dsl.load("smol").phase_alphas(100)[90]))
 print(smol_dsl.load("growth").channels[0].name)
+from smol_dsl.rundir import describe_environment
+print(describe_environment([])["commit"])
 """
 
 
@@ -54,4 +57,7 @@ def test_installed_package_works_from_any_directory(installed, tmp_path):
         timeout=300,
     )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == ["SMOL-Human", "1.0", "mass"]  # and nothing else: no MJX Warp lines
+    *printed, commit = result.stdout.split()
+    assert printed == ["SMOL-Human", "1.0", "mass"]  # and nothing else: no MJX Warp lines
+    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    assert commit.removesuffix("+changes") == head  # the commit it was built from, for environment.json

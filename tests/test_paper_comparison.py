@@ -148,9 +148,11 @@ def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, mo
     """The report reads the sweep's own output directory, --out's or the default."""
     from smol_dsl.cli import main
     from smol_dsl.cli import run as cli_run
+    from smol_dsl.results import gaits
     from smol_dsl.results import report as results_report
+    from smol_dsl.runner.replay import replay_elites
 
-    swept, reported = [], []
+    swept, reported, drawn = [], [], []
 
     def start(self, plan, footprint, progress):
         swept.append(plan.out)
@@ -159,17 +161,20 @@ def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, mo
 
     def write_report(paths, out_dir, **options):
         reported.append((paths, out_dir))
+        drawn.append((options["gaits"], options["replay"]))
         table = SimpleNamespace(task="walker2d", metric="max_fitness", markdown=lambda: "(the table)")
         return SimpleNamespace(table=table, comparison=None)
 
     monkeypatch.setattr(cli_run.Sweep, "start", start)
     monkeypatch.setattr(cli_run, "_draw_figures", lambda results: None)
     monkeypatch.setattr(results_report, "write_report", write_report)
+    monkeypatch.setattr(gaits, "gl_backend", lambda: "egl")  # MuJoCo can render: the report has gaits
     monkeypatch.chdir(tmp_path)
     where = [] if out is None else ["--out", out]
     assert main(["reproduce", "walker2d", "--seeds", "1", "--evals", "2688", "--no-progress", *where]) == 0
     printed = capsys.readouterr().out
     expected = Path(out) if out is not None else Path("runs") / "walker2d-reproduce"
     assert swept == [expected] and reported == [([expected], expected / "report")]
-    assert printed.splitlines()[0].startswith("done: 1 runs of walker2d") and "(the table)" in printed
+    assert printed.splitlines()[0].startswith("done: 1 run of walker2d") and "(the table)" in printed
+    assert drawn == [(1, replay_elites)]  # the best elite of each condition's median run, as `report` draws
     assert f"report: {expected / 'report'}" in printed

@@ -130,6 +130,18 @@ def test_same_seed_same_results(task, library, human_run):
     np.testing.assert_array_equal(np.asarray(again.repertoire.fitnesses), np.asarray(human_run.repertoire.fitnesses))
 
 
+def test_a_finished_run_resumed_trains_nothing_and_changes_nothing(task, library, human_run, tmp_path, monkeypatch):
+    """--resume of a finished run returns its result from the checkpoint: no episode start
+    is made (no rollout can run), metrics.csv and archive.npz stay as they were."""
+    out = tmp_path / "finished"
+    shutil.copytree(human_run.out_dir, out)
+    before = {name: (out / name).read_bytes() for name in ("metrics.csv", "archive.npz")}
+    monkeypatch.setattr(type(task), "episode_start", lambda self, seed: pytest.fail("a finished run made rollouts"))
+    resumed = run_experiment(task, library["human"], small_config(), out_dir=out, resume=True)
+    assert resumed.metrics == human_run.metrics
+    assert {name: (out / name).read_bytes() for name in before} == before
+
+
 @pytest.mark.slow
 def test_resume_after_interruption_matches_an_uninterrupted_run(task, library, human_run, tmp_path):
     out = tmp_path / "interrupted"

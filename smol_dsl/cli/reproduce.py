@@ -57,6 +57,7 @@ class Reproduce(Sweep):
     """`smol-dsl reproduce`: `sweep` of the paper's conditions, then `report`."""
 
     command = "reproduce"
+    gaits = 0  # elites of each condition's median run its report draws (`_gaits`)
 
     def train(self, args: argparse.Namespace) -> int:
         if args.task not in PAPER_TASKS:
@@ -68,7 +69,22 @@ class Reproduce(Sweep):
             use_cpu_cores_as_devices()  # before JAX starts: the devices a sweep here would use
             args.preset = "quick" if common.devices(args)[0].platform == "cpu" else "paper"
         args.schedules = list(PAPER_CONDITIONS)
+        self.gaits = 0 if args.dry_run else self._gaits()
         return super().train(args)  # the report is written when the sweep has ended (`summary`)
+
+    def _gaits(self) -> int:
+        """1 (the report draws the best elite of each condition's median run, as `report`
+        does) where MuJoCo can render here, else 0 and a note, checked before training."""
+        import sys
+
+        from smol_dsl.results.gaits import RenderError, gl_backend
+
+        try:
+            gl_backend()
+        except RenderError as error:
+            print(f"smol-dsl reproduce: note: the report will have no gaits: {error}", file=sys.stderr)
+            return 0
+        return 1
 
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
         return Path("runs") / f"{args.task}-reproduce"
@@ -87,8 +103,10 @@ class Reproduce(Sweep):
     def report(self, out: Path) -> str:
         """Write the report of the sweep in `out` into out/report; what to print of it."""
         from smol_dsl.results import report as results_report
+        from smol_dsl.runner.replay import replay_elites
 
-        written = results_report.write_report([out], out / "report", force=True)
+        replay = replay_elites if self.gaits else None
+        written = results_report.write_report([out], out / "report", force=True, gaits=self.gaits, replay=replay)
         lines = [f"{written.table.task}, final {written.table.metric}:\n\n{written.table.markdown()}"]
         if written.comparison is not None:
             lines.append(written.comparison.summary())

@@ -196,7 +196,7 @@ class TrainingCommand(ABC):
                 for line in describe_estimate(config, measured, footprint.memory.label).splitlines():
                     print(f"  {line}", file=sys.stderr)
             return EXIT_OK
-        note = self.note(config)
+        note = self.note(args, config)
         if note:
             print(f"smol-dsl {self.command}: {note}", file=sys.stderr)
         results = _with_progress(args, config, lambda progress: self.start(plan, footprint, progress))
@@ -220,7 +220,7 @@ class TrainingCommand(ABC):
     def announcement(self, plan: Plan) -> str:
         """What will run, printed before anything compiles (the output directory follows)."""
 
-    def note(self, config: RunConfig) -> str | None:
+    def note(self, args: argparse.Namespace, config: RunConfig) -> str | None:
         """A note printed before training starts, if any."""
         return None
 
@@ -263,9 +263,10 @@ class Run(TrainingCommand):
             f"{config.num_centroids} cells, {config.episode_length}-step episodes, seed {config.seed}"
         )
 
-    def note(self, config: RunConfig) -> str | None:
-        if config.preset != "quick":
-            return None
+    def note(self, args: argparse.Namespace, config: RunConfig) -> str | None:
+        sizes = (args.evals, args.phases, args.batch_size, args.centroids, args.episode_length)
+        if config.preset != "quick" or any(size is not None for size in sizes):
+            return None  # the preset's sizes, as sized: not once they are overridden
         return (
             "the quick preset is sized for about 2 minutes on 2 CPU cores; "
             "--preset paper runs the paper's experiment (1e7 evaluations; for a GPU)"

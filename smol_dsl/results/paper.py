@@ -27,6 +27,7 @@ from functools import cache
 from importlib import resources
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.errors import counted
 from smol_dsl.rundir.presets import preset_config
 
 if TYPE_CHECKING:
@@ -120,10 +121,10 @@ class Comparison:
     missing: list[str]  # the paper's conditions the runs lack
 
     def counts(self) -> dict[str, int]:
-        counted = {name: 0 for name in (*VERDICTS, "not comparable")}
+        tally = {name: 0 for name in (*VERDICTS, "not comparable")}
         for cell in self.cells:
-            counted[cell.verdict] += 1
-        return counted
+            tally[cell.verdict] += 1
+        return tally
 
     def summary(self) -> str:
         """One paragraph: what was compared and how the verdicts fall."""
@@ -131,7 +132,8 @@ class Comparison:
         compared = len(self.cells) - counts["not comparable"]
         text = (
             f"Of the {len(self.cells)} p-values of the paper's {self.paper.task} table that these runs can "
-            f"reproduce, {compared} were compared: {counts['agrees']} agree (same direction, both significant at "
+            f"reproduce, {counted(compared, 'was', 'were')} compared: {counts['agrees']} agree (same direction, "
+            f"both significant at "
             f"{SIGNIFICANCE}), {counts['same direction']} go the same direction (not significant in one or both), "
             f"and {counts['disagrees']} disagree (opposite directions)."
         )
@@ -223,6 +225,8 @@ def compare_with_paper(table: PValueTable, groups: dict[str, list[RunRecord]]) -
     runs = [run for group in groups.values() for run in group]
     deviations = settings_deviations(runs)
     fewest = min(len(group) for group in groups.values())
-    seeds = [] if fewest >= PAPER_SEEDS else [f"{fewest} seeds per condition at least (paper: {PAPER_SEEDS})"]
+    seeds = (
+        [] if fewest >= PAPER_SEEDS else [f"{counted(fewest, 'seed')} per condition at least (paper: {PAPER_SEEDS})"]
+    )
     missing = [name for name in paper.medians if name not in groups]
     return Comparison(paper, table, cells, not deviations, deviations + seeds, missing)

@@ -191,13 +191,21 @@ def _version(package: str) -> str | None:
         return None
 
 
+BUILD_COMMIT = Path(__file__).resolve().parents[1] / "BUILD_COMMIT"
+"""Where a package built from a git checkout records its commit (setup.py writes it)."""
+
+
 @functools.lru_cache(maxsize=1)
 def _commit() -> str | None:
-    """The git commit of the checkout smol-dsl runs from (with "+changes" if its tracked
-    files differ from it), or None for an installed package."""
+    """The git commit smol-dsl runs from (with "+changes" if its tracked files differ from
+    it): the checkout's, for a checkout or an editable install; the one the package was built
+    from (BUILD_COMMIT), for an installed package; None where neither is known."""
     root = Path(__file__).resolve().parents[2]
     if not (root / ".git").exists():
-        return None
+        try:
+            return BUILD_COMMIT.read_text().strip() or None
+        except OSError:
+            return None
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
         if head.returncode != 0:

@@ -7,6 +7,7 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.errors import counted
 from smol_dsl.rundir import ALPHA, METRIC_FIELDS
 from smol_dsl.rundir.metrics import REEVALUATION
 
@@ -50,7 +51,7 @@ class ProgressBar:
             self._bar.n = row["generation"] + 1
         elapsed = max(time.perf_counter() - self._started, 1e-9)
         rate = (evaluations - self._first_evaluations) / elapsed
-        phase = f"phase {row['phase'] + 1}/{self._config.num_phases}"
+        phase = f"phase {row['phase']} of 0-{self._config.num_phases - 1}"
         if len(rows) == 1:
             body = " ".join(f"{name} {row[name]:.3f}" for name in (ALPHA, *channel_columns(row)))
             about = f"{phase} {body} cov {row['coverage']:.1f}% max {row['max_fitness']:.1f}"
@@ -112,7 +113,7 @@ def reevaluation_warning(rows: list[dict[str, Any]], num_phases: int) -> str | N
     low = [row for row in _measured(rows) if row["kept"] + row["moved"] < LOW_KEPT * row["reevaluated"]]
     if not low:
         return None
-    phase = f"phase {low[0]['phase'] + 1}/{num_phases}"
+    phase = f"phase {low[0]['phase']} of 0-{num_phases - 1}"
     if len(rows) == 1:
         row = low[0]
         return (
@@ -139,13 +140,16 @@ def summary_line(result: RunResult, schedule: Schedule) -> str:
     final = result.final
     where = f" -> {result.out_dir}" if result.out_dir is not None else ""
     total = final["evaluations"] + final["reevaluations"]
-    return (
+    done = (
         f"done: {result.config.task} under {schedule.name}, seed {result.config.seed}: "
         f"max fitness {final['max_fitness']:.2f}, coverage {final['coverage']:.1f}%, "
         f"QD score {final['qd_score']:.1f}; {final['evaluations']} training + {final['reevaluations']} "
         f"re-evaluation evaluations in {format_duration(result.seconds)} "
         f"({total / max(result.seconds, 1e-9):.0f} evals/s){where}"
     )
+    if result.out_dir is None:
+        return done
+    return f"{done}\nnext: smol-dsl render {result.out_dir} -o best.gif (the best elite's gait)"
 
 
 def sweep_summary(results: list[RunResult], out_dir: Any) -> str:
@@ -153,7 +157,7 @@ def sweep_summary(results: list[RunResult], out_dir: Any) -> str:
     seconds = max(result.seconds for result in results)
     total = sum(r.final["evaluations"] + r.final["reevaluations"] for r in results)
     return (
-        f"done: {len(results)} runs of {results[0].config.task} in {format_duration(seconds)} "
+        f"done: {counted(len(results), 'run')} of {results[0].config.task} in {format_duration(seconds)} "
         f"({total / max(seconds, 1e-9):.0f} evals/s over all runs) -> {out_dir}\n"
         f"next: smol-dsl report {out_dir}"
     )

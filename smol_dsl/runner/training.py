@@ -15,6 +15,7 @@ sets of archives are in memory at any time, what `footprint` sizes."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import time
 from collections.abc import Callable, Iterator
@@ -214,8 +215,6 @@ class Training:
         self._own_bodies = [
             self.bodies[r][:, [self.channels.index(c) for c in run.schedule.channels]] for r, run in enumerate(runs)
         ]
-        starts = {seed: task.episode_start(seed) for seed in dict.fromkeys(seeds)}
-        self.starts = engine.put(stack_runs([starts[seed] for seed in seeds]))
         self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
         self._seeds = seeds
         self._phase_evaluations = np.zeros(len(runs), dtype=np.int64)  # the current phase's training batches
@@ -224,6 +223,13 @@ class Training:
         self.keys: Any = None
         self.states: list[RunState] = []
         self.logs: list[MetricsLog] = []
+
+    @functools.cached_property
+    def starts(self) -> Any:
+        """Every run's episode start, on the devices; made when first needed (a finished run
+        resumed needs none: making them is most of what such a resume would cost)."""
+        starts = {seed: self.task.episode_start(seed) for seed in dict.fromkeys(self._seeds)}
+        return self.engine.put(stack_runs([starts[seed] for seed in self._seeds]))
 
     # ------------------------------------------------------------------ start
     def start(self, saved: tuple[Any, Any, list[RunState]] | None) -> None:
