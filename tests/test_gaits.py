@@ -105,6 +105,13 @@ def test_an_mp4_holds_the_frames_at_the_environment_s_rate(small_run, tmp_path, 
         (["--body", "0,1"], "factor(s) above 0"),
         (["--at", "0.5"], "descriptors have 2 value(s)"),
         (["-o", "gait.avi"], "one of .gif, .mp4, .html"),
+        (["--body", "1.2", "--body", "1.2"], "--body 1.2 is given twice"),
+        (["--body", "1e30"], "above what walker2d's physics takes"),
+        (["--at", "nan,nan"], "give finite descriptor values"),
+        (["--at", "inf,0"], "give finite descriptor values"),
+        (["--cells", "1000"], "give --cells"),
+        (["-o", "/proc/x.gif"], "cannot write /proc/x.gif"),
+        (["--body", "1", "--body", "1.1", "--size", "4096x4096", "--steps", "1000"], "GiB of memory"),
     ],
 )
 def test_bad_choices_are_one_message_and_exit_2(small_run, tmp_path, capsys, monkeypatch, args, message):
@@ -123,6 +130,9 @@ def test_an_empty_cell_names_the_best_one(small_run, capsys):
 def test_a_missing_run_or_a_folder_of_runs_is_refused(tmp_path, small_run, capsys):
     code, err = cli(["render", str(tmp_path / "nowhere")], capsys)
     assert code == 2 and "no such run directory" in err
+    (tmp_path / "notes.md").write_text("a file")
+    code, err = cli(["render", str(tmp_path / "notes.md")], capsys)
+    assert code == 2 and "is a file, not a run directory" in err
     code, err = cli(["render", str(small_run.parent)], capsys)
     assert code == 2 and "give one of them" in err and str(small_run.name) in err
 
@@ -132,3 +142,61 @@ def test_no_gl_backend_names_the_packages_to_install(small_run, capsys, monkeypa
     monkeypatch.setattr(gaits, "GL_BACKENDS", ("none-such",))
     code, err = cli(["render", str(small_run), "-o", "unused.gif"], capsys)
     assert code == 2 and "apt-get install" in err and "libosmesa6" in err, err
+
+
+def test_an_mp4_without_the_video_extra_is_refused_before_rendering(small_run, tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "imageio_ffmpeg" else find_spec(name, *a)
+    )
+    monkeypatch.setattr(gaits, "render_gaits", lambda *a, **k: pytest.fail("rendered before the check"))
+    code, err = cli(["render", str(small_run), "-o", str(tmp_path / "g.mp4")], capsys)
+    assert code == 2 and "smol-dsl[video]" in err and not (tmp_path / "g.mp4").exists(), err
+
+
+def test_canvases_too_large_are_refused_and_many_tiles_make_a_grid():
+    assert gaits.check_canvas(4, 1, (320, 240), 30, 0.008, ".gif") == (2 * 320, 2 * (240 + gaits.BANNER))
+    assert gaits.check_canvas(110, 1, (640, 16), 30, 0.008, ".gif") == (11 * 640, 10 * (16 + gaits.BANNER))
+    with pytest.raises(gaits.RenderError, match=r"over \.gif's largest side"):
+        gaits.check_canvas(1, 17, (4096, 16), 30, 0.008, ".gif")
+    with pytest.raises(gaits.RenderError, match="GiB of memory"):
+        gaits.check_canvas(4, 2, (1024, 1024), 20_000, 0.008, ".mp4")
+
+
+def test_two_bodies_are_two_rollouts_in_a_frame_of_any_height(small_run, tmp_path, capsys):
+    """--body 0.6 --body 1.4: each tile is rolled out in its own body (they differ), at a
+    size taller than MuJoCo's default framebuffer."""
+    out = tmp_path / "two.gif"
+    code, err = cli(
+        [
+            "render",
+            str(small_run),
+            "--body",
+            "0.6",
+            "--body",
+            "1.4",
+            "--size",
+            "320x481",
+            "--steps",
+            "10",
+            "-o",
+            str(out),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    frames, _ = gif_frames(out)
+    assert frames[0].shape == (481 + gaits.BANNER, 2 * 320, 3)
+    left, right = frames[-1][gaits.BANNER :, :320], frames[-1][gaits.BANNER :, 320:]
+    assert np.abs(left - right).mean() > 0.5  # not one rollout drawn twice
+
+
+def test_a_point_outside_the_descriptor_space_is_noted(small_run, tmp_path, capsys):
+    from smol_dsl.cli import main
+
+    assert main(["render", str(small_run), "--at", "5,5", "--steps", "5", "-o", str(tmp_path / "far.gif")]) == 0
+    printed = capsys.readouterr().out
+    assert "note: --at 5,5 lies outside walker2d's descriptor space ([0, 1] x [0, 1])" in printed, printed
+    assert "the nearest elite, in cell" in printed

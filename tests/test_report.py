@@ -476,6 +476,13 @@ def test_output_that_is_a_file_is_refused(pristine, tmp_path, capsys):
     assert target.read_text() == "my notes"
 
 
+def test_output_that_is_a_run_directory_is_refused(pristine, tmp_path, capsys):
+    run = next(path.parent for path in sorted(pristine.rglob("metrics.csv")))
+    before = sorted(path.name for path in run.iterdir())
+    refused(["report", str(pristine), "-o", str(run)], capsys, run, "is a run directory")
+    assert sorted(path.name for path in run.iterdir()) == before
+
+
 def test_output_in_a_new_directory_is_made(pristine, tmp_path, capsys):
     out = tmp_path / "not" / "yet" / "there"
     assert main(["report", str(pristine), "-o", str(out), "--no-gaits"]) == 0

@@ -1,5 +1,6 @@
 """The report's index.html from a real run, opened in headless Chromium: it loads nothing
-but the files beside it, logs no error, and shows the table, the figures and the gaits."""
+but the files beside it, logs no error, and shows the table, what ran, the figures (captioned,
+with their PDFs) and the gaits."""
 
 from __future__ import annotations
 
@@ -27,6 +28,20 @@ def test_the_report_writes_a_page_and_each_schedule_s_gaits(report_dir):
     assert image.size[0] == 2 * 320 and image.n_frames >= 2  # two elites side by side
     page = (report_dir / "index.html").read_text()
     assert "<script" not in page and "http" not in page.replace('href="table.md"', "")
+
+
+def test_the_page_says_what_ran_captions_its_figures_and_links_only_files_beside_it(report_dir):
+    import re
+
+    page = (report_dir / "index.html").read_text()
+    for heading in ("runs", "budget", "settings", "environment"):
+        assert f"<b>{heading}</b>: " in page, heading
+    assert "208 evaluations per run" in page and "Python " in page
+    captions = re.findall(r"<figcaption>(.*?)</figcaption>", page, re.S)
+    assert captions and all(len(caption) > 40 for caption in captions), captions  # sentences, not file names
+    links = re.findall(r'href="([^"]+)"', page)
+    assert "main-results.pdf" in links and "archives.pdf" in links
+    assert all((report_dir / link).is_file() for link in links), links
 
 
 @pytest.mark.skipif(chromium() is None, reason="no Chromium (Debian: apt-get install chromium; .ci/run installs it)")
