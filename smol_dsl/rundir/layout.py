@@ -35,7 +35,11 @@ FILES = (
         "under another",
     ),
     (SCHEDULE_FILE, "the schedule's source"),
-    (CERTIFICATE_FILE, "what was proven about the schedule, with its `name` and `tail_start` (where α = 1 for good)"),
+    (
+        CERTIFICATE_FILE,
+        "what was proven about the schedule, with its `name`, `tail_start` (where α = 1 for good) and "
+        "`schedule_sha256` (the text it proves)",
+    ),
     (CERTIFICATE_TEXT_FILE, "the same certificate, as `smol-dsl check` prints it"),
     (METRICS_FILE, "one row per generation and per re-evaluation (columns below)"),
     (CHECKPOINT_FILE, "the state at the last checkpointed phase boundary (for `--resume`)"),
