@@ -76,6 +76,8 @@ SHARED_WORKERS = {
     "test_gaits": "small-runs",
     "test_report_page": "small-runs",
     "test_environment": "small-runs",
+    "test_entry_points": "small-runs",
+    "test_replay": "small-runs",
     "test_tasks": "brax-tasks",
     "test_body": "brax-tasks",
 }

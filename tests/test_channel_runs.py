@@ -61,13 +61,13 @@ def test_every_channel_is_a_traced_input_one_compilation_for_all_phases(three_ch
     engine = shared_engine(task, three_channel_run.config, tuple(jax.local_devices()), 1, 1, schedule.channels)
     programs = {part: getattr(engine, part)._cache_size() for part in ("_ask", "_scores", "_tell", "_pick", "_insert")}
     assert programs["_scores"] == 1  # one scoring program for every generation and re-evaluation
-    # another run of these channels, with 4 phases of other values and another seed: the same
+    # another run of these channels, with 11 phases of other values and another seed: the same
     # engine (no engine is built), and no new program in it
     built = engine_module._engine.cache_info()
     used = []
     monkeypatch.setattr(Engine, "step", spy(Engine.step, used))
-    again = run_experiment(task, schedule, small_config(num_phases=4, seed=9))
-    assert not np.array_equal(again.bodies, values[:4])
+    again = run_experiment(task, schedule, small_config(num_phases=11, seed=9))
+    assert again.bodies.shape == (11, 3) and not np.array_equal(again.bodies[:10], values)
     assert used and all(other is engine for other in used)
     assert engine_module._engine.cache_info().misses == built.misses
     assert {part: getattr(engine, part)._cache_size() for part in programs} == programs

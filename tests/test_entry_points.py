@@ -18,8 +18,7 @@ from small_runs import FLAGS, SETTINGS, cli, small_task
 
 from smol_dsl import load
 from smol_dsl import qdax as smol
-from smol_dsl.runner import preset_config, run_experiment
-from smol_dsl.runner.config import ConfigError
+from smol_dsl.runner import ConfigError, preset_config, run_experiment
 
 SMALL = {**SETTINGS, "num_phases": 10}
 

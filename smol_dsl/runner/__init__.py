@@ -18,7 +18,7 @@ from typing import Any
 
 from smol_dsl.rundir.config import RunConfig
 from smol_dsl.rundir.presets import PRESETS, preset_config
-from smol_dsl.runner.config import RunError, check_config
+from smol_dsl.runner.config import ConfigError, RunError, check_config
 
 _LAZY = {
     "Archive": "smol_dsl.rundir",
@@ -32,6 +32,7 @@ _LAZY = {
 __all__ = [
     "PRESETS",
     "Archive",
+    "ConfigError",
     "RunConfig",
     "RunError",
     "RunResult",
