@@ -164,12 +164,19 @@ def scoring_function(
     """
     schedule = as_schedule(schedule)
     task = task_for(task, schedule)
-    start = task.episode_start(check_seed(seed, "seed")) if start is None else start
+    seed = check_seed(seed, "seed")
+    starts = [start] if start is not None else []  # the episode start, made at the first scoring
+
+    def episode_start() -> State:
+        if not starts:  # computed on concrete values even when first asked inside a trace
+            with jax.ensure_compile_time_eval():
+                starts.append(task.episode_start(seed))
+        return starts[0]
     names = ", ".join(channel.name for channel in task.channels)
     size = len(task.channels)
 
     def rollouts(policies: Any, body: jax.Array) -> tuple[jax.Array, jax.Array, dict[str, Any]]:
-        results = task.score(policies, body, start, transitions=transitions)
+        results = task.score(policies, body, episode_start(), transitions=transitions)
         fitnesses, descriptors, _ = drop_non_finite(*results[:2])
         return fitnesses, descriptors, ({"transitions": results[2]} if transitions else {})
 
