@@ -9,31 +9,21 @@ which environment.json reports where no checkout is beside the installed package
 Everything else is in pyproject.toml.
 """
 
-import subprocess
+import importlib.util
 from pathlib import Path
 
 from setuptools import find_packages, setup
 from setuptools.command.build_py import build_py
 
-BUILD_COMMIT = "BUILD_COMMIT"
+ROOT = Path(__file__).resolve().parent
 
 
-def checkout_commit(root: Path) -> str | None:
-    """The checkout's commit, with "+changes" if its tracked files differ from it; None
-    outside a git checkout or without git."""
-    try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
-        status = subprocess.run(
-            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    if head.returncode != 0 or status.returncode != 0:
-        return None
-    return head.stdout.strip() + ("+changes" if status.stdout.strip() else "")
+def _commit_module():
+    """smol_dsl/rundir/commit.py, loaded by its path: it imports nothing of smol-dsl's."""
+    spec = importlib.util.spec_from_file_location("smol_dsl_commit", ROOT / "smol_dsl" / "rundir" / "commit.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 class BuildWithCommit(build_py):
@@ -42,9 +32,10 @@ class BuildWithCommit(build_py):
 
     def run(self) -> None:
         super().run()
-        commit = checkout_commit(Path(__file__).resolve().parent)
+        commit_module = _commit_module()
+        commit = commit_module.checkout_commit(ROOT)
         if commit is not None and not getattr(self, "editable_mode", False):
-            (Path(self.build_lib) / "smol_dsl" / BUILD_COMMIT).write_text(commit + "\n")
+            (Path(self.build_lib) / "smol_dsl" / commit_module.BUILD_COMMIT).write_text(commit + "\n")
 
 
 setup(

@@ -172,6 +172,7 @@ def scoring_function(
             with jax.ensure_compile_time_eval():
                 starts.append(task.episode_start(seed))
         return starts[0]
+
     names = ", ".join(channel.name for channel in task.channels)
     size = len(task.channels)
 

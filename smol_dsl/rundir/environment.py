@@ -21,12 +21,12 @@ from __future__ import annotations
 import functools
 import json
 import platform
-import subprocess
 from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from smol_dsl.rundir.commit import BUILD_COMMIT, checkout_commit
 from smol_dsl.rundir.files import read_text, write_text
 from smol_dsl.rundir.layout import ENVIRONMENT_FILE, RunDirectoryError, leave_out
 
@@ -191,34 +191,19 @@ def _version(package: str) -> str | None:
         return None
 
 
-BUILD_COMMIT = Path(__file__).resolve().parents[1] / "BUILD_COMMIT"
-"""Where a package built from a git checkout records its commit (setup.py writes it)."""
-
-
 @functools.lru_cache(maxsize=1)
 def _commit() -> str | None:
     """The git commit smol-dsl runs from (with "+changes" if its tracked files differ from
     it): the checkout's, for a checkout or an editable install; the one the package was built
-    from (BUILD_COMMIT), for an installed package; None where neither is known."""
-    root = Path(__file__).resolve().parents[2]
-    if not (root / ".git").exists():
-        try:
-            return BUILD_COMMIT.read_text().strip() or None
-        except OSError:
-            return None
+    from (`BUILD_COMMIT`, written by setup.py), for an installed package; None where neither
+    is known."""
+    package = Path(__file__).resolve().parents[1]
+    if (package.parent / ".git").exists():
+        return checkout_commit(package.parent)
     try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
-        if head.returncode != 0:
-            return None
-        status = subprocess.run(
-            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
-    except (OSError, subprocess.TimeoutExpired):
+        return (package / BUILD_COMMIT).read_text().strip() or None
+    except OSError:
         return None
-    return head.stdout.strip() + ("+changes" if status.stdout.strip() else "")
 
 
 @functools.lru_cache(maxsize=1)
