@@ -80,10 +80,13 @@ SHARED_WORKERS = {
     "test_replay": "small-runs",
     "test_tasks": "brax-tasks",
     "test_body": "brax-tasks",
+    "test_install": "builds",
+    "test_wheelhouse": "builds",
 }
 """Test files that pytest-xdist runs in one worker: those that train at the one size of
 small_runs (they share the session's small run and the engines of its settings), and
-those that share the `walker` and `cheetah` tasks. Every other file is a unit of its own,
+those that share the `walker` and `cheetah` tasks, and those that build smol-dsl's wheel in the
+checkout (pip builds in place: two builds at once would share its build/ folder). Every other file is a unit of its own,
 as with `--dist loadfile`."""
 
 
