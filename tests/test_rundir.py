@@ -412,6 +412,27 @@ def test_the_certificate_names_the_channels_and_the_final_body(tmp_path, library
 
 
 # ---------------------------------------------------------------------------- import weight
+LANGUAGE_AND_TRAINING = ("sympy", "lark", "mpmath", "jax", "brax", "qdax", "flax")
+"""What reading a run's config, metrics and archive, or the tasks' ranges, must not load."""
+
+
+def test_reading_a_run_s_files_loads_neither_the_language_nor_jax(tmp_path, library):
+    run = write_run(tmp_path / "run", library, "growth", 0, {"max_fitness": 1.0})
+    code = f"""
+from pathlib import Path
+import smol_dsl.rundir, smol_dsl.tasks
+from smol_dsl.rundir import load_archive, read_config, read_final_archive, read_metrics
+from smol_dsl.tasks import task_spec
+run = Path({str(run)!r})
+config = read_config(run / "config.json")
+assert read_metrics(run / "metrics.csv", config)[-1]["mass"] > 0
+assert read_final_archive(run, config).fitnesses.shape == (config.num_centroids,)
+assert load_archive(run).filled.shape == (config.num_centroids,)
+task_spec("walker2d").factor_ranges["gear"]
+"""
+    assert loaded_modules(code, LANGUAGE_AND_TRAINING) == []
+
+
 def test_reading_a_run_directory_loads_no_jax(tmp_path, library):
     """read_run verifies schedule.sched again (sympy and Lark), but never loads JAX or Brax."""
     run = write_run(tmp_path / "run", library, "growth", 0, {"max_fitness": 1.0})

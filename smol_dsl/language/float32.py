@@ -33,16 +33,9 @@ from mpmath import iv
 
 from smol_dsl.errors import ScheduleError, Span
 from smol_dsl.language.prover import ENCLOSURE_SECONDS, VerificationTimeoutError, time_limit
+from smol_dsl.language.float32_limits import SAFE_MAX, SAFE_MIN, TINY, UNIT
 from smol_dsl.language.symbolic import T
 
-UNIT = 2.0**-24
-"""Unit roundoff of float32 (round to nearest)."""
-SAFE_MAX = 2.0**120
-"""Largest magnitude any intermediate value may reach (float32 overflows at 2**128)."""
-SAFE_MIN = 2.0**-120
-"""Smallest magnitude of a divisor or a logarithm's argument after rounding (2**-126 flushes to 0)."""
-TINY = 2.0**-126
-"""Absolute error of one underflow: a float32 result this small may be flushed to 0."""
 FUNCTION_ULPS = 8
 """Error of XLA's float32 exp, log, sin, cos, tanh and pow, in units of roundoff (generous)."""
 PIECES = 16

@@ -27,7 +27,7 @@ import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
 from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel
-from smol_dsl.language.float32 import SAFE_MAX, SAFE_MIN
+from smol_dsl.language.float32_limits import SAFE_MAX, SAFE_MIN
 from smol_dsl.language.prover import (
     Extrema,
     Monotone,

@@ -1,7 +1,8 @@
 """The run directory: the one definition of what `smol-dsl run` and `sweep` write and what
 `smol-dsl report` reads. Both the runner and the results read and write through this
-package, which sits between the tasks and the runner; nothing here imports JAX, Brax, QDax,
-Flax or sympy.
+package, which sits between the tasks and the runner; nothing here imports JAX, Brax, QDax
+or Flax, and sympy, mpmath and Lark are loaded only when a schedule is verified (`read_run`
+verifies schedule.sched; reading config, metrics or archive does not).
 
 Modules, one concept each:
 

@@ -17,7 +17,6 @@ import numpy as np
 
 from smol_dsl.errors import ScheduleError
 from smol_dsl.language.channels import GEAR, Channel
-from smol_dsl.language.schedule import parse
 from smol_dsl.rundir.archive import FinalArchive, read_final_archive
 from smol_dsl.rundir.certificate import (
     SOURCE_DIGEST,
@@ -212,7 +211,10 @@ archive's, summed here in float64."""
 
 @functools.lru_cache(maxsize=64)
 def _parsed(source: str) -> Schedule | ScheduleError:
-    """A schedule.sched text parsed and verified (once per text: a sweep's runs share one)."""
+    """A schedule.sched text parsed and verified (once per text: a sweep's runs share one).
+    The language (sympy, Lark) is imported here, so that reading a run's other files does not."""
+    from smol_dsl.language.schedule import parse
+
     try:
         return parse(source)
     except ScheduleError as error:

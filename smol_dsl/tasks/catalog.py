@@ -21,7 +21,7 @@ mass, the ants below about 0.02).
 
 from __future__ import annotations
 
-from smol_dsl.language.float32 import SAFE_MAX, SAFE_MIN
+from smol_dsl.language.float32_limits import SAFE_MAX, SAFE_MIN
 from smol_dsl.tasks.anatomy import Anatomy
 from smol_dsl.tasks.ranges import FactorRange
 from smol_dsl.tasks.registry import TaskSpec

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 from smol_dsl.errors import ScheduleError
 from smol_dsl.language.channels import CHANNEL_KINDS, Channel
-from smol_dsl.language.float32 import SAFE_MAX, SAFE_MIN
+from smol_dsl.language.float32_limits import SAFE_MAX, SAFE_MIN
 from smol_dsl.tasks.anatomy import resolve, resolved_names
 
 if TYPE_CHECKING:

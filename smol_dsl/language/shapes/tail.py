@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from smol_dsl.language.float32 import UNIT
+from smol_dsl.language.float32_limits import UNIT
 from smol_dsl.language.shapes.base import Compiled, Line, Shape
 
 if TYPE_CHECKING:
