@@ -56,6 +56,8 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.results.conditions import PAPER_CONDITIONS, PAPER_SEEDS, PAPER_TASKS
+
 warnings.filterwarnings("ignore")
 if TYPE_CHECKING:
     import jax
@@ -64,18 +66,6 @@ if TYPE_CHECKING:
     from smol_dsl.runner.estimate import Measurement
     from smol_dsl.runner.footprint import Footprint
 
-PAPER_TASKS = ("walker2d", "halfcheetah", "ant_omni")
-PAPER_CONDITIONS = (
-    "smol",
-    "smol-reverse",
-    "human",
-    "vanilla",
-    "random",
-    "extinction-05",
-    "extinction-10",
-    "extinction-50",
-)  # the paper's eight conditions, as `smol-dsl reproduce` runs them
-PAPER_SEEDS = 10
 ROLLOUT_TASKS = ("walker2d", "ant_omni")
 ROLLOUT_BATCHES = (1024, 4096, 8192, 16384, 32768)
 SMALL_ROLLOUT_BATCHES = (16, 32)
@@ -404,7 +394,7 @@ def runner_parts(small: bool) -> list[RunnerPart]:
     settings = SMALL_SETTINGS if small else {}
     one = [RunnerPart(task, 1, preset_config(task, "paper", **settings), ("vanilla",)) for task in PAPER_TASKS]
     ant = preset_config("ant_omni", "paper", **settings)
-    sweep = RunnerPart("ant_omni", len(PAPER_CONDITIONS), ant, PAPER_CONDITIONS)
+    sweep = RunnerPart("ant_omni", len(PAPER_CONDITIONS), ant, tuple(c.schedule for c in PAPER_CONDITIONS))
     return [*one, sweep]
 
 

@@ -85,7 +85,7 @@ class UserInputError(Exception):
     """Bad input or a bad environment, not a bug: a file, option or directory that cannot be used.
 
     The message names the file or option and says what to do. The library raises subclasses
-    (`ScheduleError`, `smol_dsl.runner.RunError`, `smol_dsl.results.report.ReportError`,
+    (`ScheduleError`, `smol_dsl.runner.RunError`, `smol_dsl.results.ReportError`,
     `smol_dsl.rundir.RunDirectoryError`); the CLI prints the message and exits with
     status 2, without a traceback. The message is a string or a `Message`.
     """

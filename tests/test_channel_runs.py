@@ -15,7 +15,7 @@ import small_runs
 
 import smol_dsl
 from smol_dsl.language.channels import GEAR, Channel
-from smol_dsl.results.report import ReportError, load_runs
+from smol_dsl.results.runs import ReportError, load_runs
 from smol_dsl.runner import engine as engine_module
 from smol_dsl.runner import run_experiment
 from smol_dsl.runner.engine import Engine, shared_engine

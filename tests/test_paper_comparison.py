@@ -10,6 +10,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from smol_dsl.language.schedule import load
+from smol_dsl.results.conditions import ABLATIONS, ORDER, PAPER_CONDITIONS, PAPER_TASKS
+from smol_dsl.results.conditions import CURRICULA as COLUMNS
 from smol_dsl.results.paper import (
     VERDICTS,
     compare_with_paper,
@@ -18,7 +21,7 @@ from smol_dsl.results.paper import (
     paper_table,
     verdict,
 )
-from smol_dsl.results.report import COLUMNS, ORDER, PValueTable
+from smol_dsl.results.statistics import PValueTable
 from smol_dsl.runner import preset_config
 
 
@@ -36,6 +39,15 @@ def test_the_paper_s_tables_ship_with_the_package(task, metric):
             assert value is None or 0 < value < 1
     assert "pvalues.tex" in paper_source()
     assert paper_table("hopper") is None
+
+
+def test_each_condition_is_named_as_its_bundled_schedule():
+    """The report groups runs by their schedule's `name`; the conditions table must say the same."""
+    for condition in PAPER_CONDITIONS:
+        assert load(condition.schedule).name == condition.name
+    assert len({condition.color for condition in PAPER_CONDITIONS}) == len(PAPER_CONDITIONS)
+    assert COLUMNS == ("SMOL", "SMOL-Reverse", "SMOL-Human") and len(ABLATIONS) == 4
+    assert sorted(paper_table(task) is not None for task in PAPER_TASKS) == [True] * 3
 
 
 def test_known_cells_of_the_paper():

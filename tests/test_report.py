@@ -24,9 +24,11 @@ from synthetic_runs import SEEDS, loaded_modules, many_schedules, refused, snaps
 
 import smol_dsl
 from smol_dsl.cli import main
-from smol_dsl.results import report as report_module
-from smol_dsl.results.report import REPORT_FILES, ReportError, load_runs, pvalue_table, write_report
+from smol_dsl.results.report import REPORT_FILES, write_report
+from smol_dsl.results.runs import ReportError, load_runs
+from smol_dsl.results.statistics import pvalue_table
 from smol_dsl.rundir import MetricsLog, read_metrics
+from smol_dsl.rundir import files as rundir_files
 
 
 @pytest.fixture(scope="module")
@@ -523,7 +525,7 @@ def test_a_full_disk_leaves_the_earlier_report_whole(pristine, tmp_path, capsys,
         written.append(path)
         path.write_bytes(data)
 
-    monkeypatch.setattr(report_module, "_write_bytes", full_disk)
+    monkeypatch.setattr(rundir_files, "_write_bytes", full_disk)
     refused(["report", str(pristine), "-o", str(out), "--force"], capsys, "No space left on device", out)
     assert snapshot(out) == before  # nothing renamed into place, every temporary file removed
     assert len(written) == 3

@@ -18,7 +18,7 @@ from small_runs import CONFIG, FLAGS
 
 from smol_dsl.cli import main
 from smol_dsl.language.channels import GEAR
-from smol_dsl.results.report import load_runs
+from smol_dsl.results.runs import load_runs
 from smol_dsl.runner import RunError, load_archive, run_experiment, run_sweep
 from smol_dsl.runner.engine import shared_engine, stack_runs
 from smol_dsl.runner.sweep import plan_sweep

@@ -129,7 +129,7 @@ def _run_directory(directory: Path) -> Path:
     if not directory.is_dir():
         raise UsageError(f"{directory} is a file, not a run directory; give the directory `smol-dsl run` wrote")
     if not is_run_directory(directory):
-        from smol_dsl.results.report import find_run_directories
+        from smol_dsl.results.runs import find_run_directories
 
         runs = find_run_directories([directory])
         shown = ", ".join(str(p) for p in runs[:3]) + (", ..." if len(runs) > 3 else "")

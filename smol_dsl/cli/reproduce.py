@@ -1,6 +1,6 @@
 """`smol-dsl reproduce TASK`: the paper's experiment for a task in one command.
 
-The paper's eight conditions (`PAPER_CONDITIONS`) x `--seeds` (10, as in the paper) as one
+The paper's eight conditions (`smol_dsl.results.conditions`) x `--seeds` (10, as in the paper) as one
 sweep in the paper's settings (`--preset paper`, the default on an accelerator; `quick` on
 CPUs, where the paper's budget would take weeks), resumable with `--resume` and taking
 every option of `sweep`; then the report, with the paper's table beside ours
@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from smol_dsl.cli import common
 from smol_dsl.cli.common import UsageError
 from smol_dsl.cli.run import Sweep, add_sweep_options, use_cpu_cores_as_devices
+from smol_dsl.results.conditions import PAPER_CONDITIONS, PAPER_SEEDS, PAPER_TASKS
 
 if TYPE_CHECKING:
     from smol_dsl.cli.run import Plan
@@ -23,27 +24,13 @@ if TYPE_CHECKING:
     from smol_dsl.rundir import RunConfig
     from smol_dsl.runner import RunResult
 
-PAPER_TASKS = ("walker2d", "halfcheetah", "ant_omni")
-PAPER_CONDITIONS = (
-    "smol",
-    "smol-reverse",
-    "human",
-    "vanilla",
-    "random",
-    "extinction-05",
-    "extinction-10",
-    "extinction-50",
-)
-"""The bundled schedules of the paper's eight conditions, in its table's order."""
-PAPER_SEEDS = 10
-
 
 def add_parsers(commands: argparse._SubParsersAction) -> None:
     reproduce = commands.add_parser(
         "reproduce",
         help="the paper's experiment for a task: its eight conditions, its seeds, then the report",
-        description="Run the paper's eight conditions (SMOL, SMOL-Reverse, SMOL-Human, Vanilla MAP-Elites, "
-        "Random, Extinction 5/10/50%) x --seeds as one sweep, then write the report with the paper's table "
+        description=f"Run the paper's eight conditions ({', '.join(c.name for c in PAPER_CONDITIONS)}) "
+        "x --seeds as one sweep, then write the report with the paper's table "
         "beside ours (paper-comparison.md: every p-value, ours and the paper's, and a verdict). The default "
         "preset is the paper's on an accelerator and `quick` on CPUs; other settings are named in the "
         "comparison, which then compares only directions and significance. Takes sweep's options.",
@@ -68,7 +55,7 @@ class Reproduce(Sweep):
         if args.preset is None:
             use_cpu_cores_as_devices()  # before JAX starts: the devices a sweep here would use
             args.preset = "quick" if common.devices(args)[0].platform == "cpu" else "paper"
-        args.schedules = list(PAPER_CONDITIONS)
+        args.schedules = [condition.schedule for condition in PAPER_CONDITIONS]
         self.gaits = 0 if args.dry_run else self._gaits()
         return super().train(args)  # the report is written when the sweep has ended (`summary`)
 

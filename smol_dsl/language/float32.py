@@ -32,8 +32,8 @@ import sympy as sp
 from mpmath import iv
 
 from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.language.prover import ENCLOSURE_SECONDS, VerificationTimeoutError, time_limit
 from smol_dsl.language.float32_limits import SAFE_MAX, SAFE_MIN, TINY, UNIT
+from smol_dsl.language.prover import ENCLOSURE_SECONDS, VerificationTimeoutError, time_limit
 from smol_dsl.language.symbolic import T
 
 FUNCTION_ULPS = 8

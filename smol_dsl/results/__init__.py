@@ -1,16 +1,22 @@
 """Finished runs, read from their run directories (`smol_dsl.rundir`): the paper's statistics
 and report, and every figure.
 
-- `report`: `load_runs(paths)` finds and checks run directories and groups comparable runs
-  by schedule; `pvalue_table(groups)` is the paper's table of one-sided Mann-Whitney U
-  tests; `write_report(paths, out_dir)` writes it with the figures (`smol-dsl report`).
+- `conditions`: the paper's tasks, seeds and eight conditions (schedule, name, colour,
+  role), the one table every other module reads;
+- `runs`: `load_runs(paths)` finds and checks run directories and groups comparable runs
+  by schedule;
+- `statistics`: `pvalue_table(groups)` is the paper's table of one-sided Mann-Whitney U
+  tests;
+- `paper`: that table beside the paper's (paper_table.json);
+- `report`: `write_report(paths, out_dir)` writes the table with the figures and
+  `page`'s index.html (`smol-dsl report`);
 - `figures`: `save_run_figures(directory)` draws a finished run directory's metrics.png and
   archive.png from its files, and is what the CLI calls after `run` and `sweep` have
   trained; `schedule_figure(schedules)` is the paper's Figure 2 (`smol-dsl plot`);
   `results_figure` and `archives_figure` are the report's.
 
 The names below load their module on first use, so `import smol_dsl.results` loads nothing
-else; `smol_dsl.results.report` imports no JAX, Brax or QDax, so reporting on runs does not
+else; `report` and the modules it uses import no JAX, Brax or QDax, so reporting on runs does not
 load them, and `figures` imports JAX only to evaluate schedules (`schedule_figure`).
 """
 
@@ -21,12 +27,14 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from smol_dsl.results.figures import archives_figure, results_figure, save_run_figures, schedule_figure
-    from smol_dsl.results.report import ReportError, load_runs, pvalue_table, write_report
+    from smol_dsl.results.report import write_report
+    from smol_dsl.results.runs import ReportError, load_runs
+    from smol_dsl.results.statistics import pvalue_table
 
 _LAZY = {
-    "ReportError": "smol_dsl.results.report",
-    "load_runs": "smol_dsl.results.report",
-    "pvalue_table": "smol_dsl.results.report",
+    "ReportError": "smol_dsl.results.runs",
+    "load_runs": "smol_dsl.results.runs",
+    "pvalue_table": "smol_dsl.results.statistics",
     "write_report": "smol_dsl.results.report",
     "archives_figure": "smol_dsl.results.figures",
     "results_figure": "smol_dsl.results.figures",

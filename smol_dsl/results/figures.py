@@ -13,7 +13,6 @@ Brax, and JAX only inside `schedule_figure`, which evaluates schedules.
 from __future__ import annotations
 
 import math
-import os
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from smol_dsl.language.channels import GEAR
+from smol_dsl.results.conditions import COLORS
 from smol_dsl.rundir import (
     ALPHA,
     ARCHIVE_FIGURE,
@@ -35,6 +35,7 @@ from smol_dsl.rundir import (
     read_run,
     scheduled_columns,
 )
+from smol_dsl.rundir.files import atomic_write
 from smol_dsl.tasks import descriptor_bounds
 
 if TYPE_CHECKING:
@@ -215,19 +216,14 @@ def kinds_figure(
 
 
 def save_figure(figure: Figure, out: str | Path, *, dpi: int = 150) -> Path:
-    """Save to PNG, SVG or PDF by the file's suffix, atomically: the figure is drawn into a
-    temporary file beside `out` and renamed over it, so `out` is never left half-written."""
+    """Save to PNG, SVG or PDF by the file's suffix, atomically (`rundir.files.atomic_write`),
+    so `out` is never left half-written."""
     path = Path(out)
     if path.suffix.lower() not in FIGURE_FORMATS:
         raise ValueError(
             f"unsupported figure format {path.suffix or '(none)'!r}; use one of {', '.join(FIGURE_FORMATS)}"
         )
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        figure.savefig(temporary, dpi=dpi, format=path.suffix.lower()[1:])
-        os.replace(temporary, path)
-    finally:
-        temporary.unlink(missing_ok=True)
+    atomic_write(path, lambda file: figure.savefig(file, dpi=dpi, format=path.suffix.lower()[1:]))
     return path
 
 
@@ -435,17 +431,6 @@ def save_run_figures(directory: str | Path) -> list[Path]:
 
 
 # ---------------------------------------------------------------------------- the report's figures
-ORDER_COLORS = {
-    "Vanilla MAP-Elites": "#4d4d4d",
-    "SMOL": "#1f77b4",
-    "SMOL-Reverse": "#ff7f0e",
-    "SMOL-Human": "#2ca02c",
-    "Random": "#9467bd",
-    "Extinction 5%": "#8c564b",
-    "Extinction 10%": "#e377c2",
-    "Extinction 50%": "#bcbd22",
-}
-"""The paper's schedules' colours (by their names); others take matplotlib's next ones."""
 ARCHIVE_COLUMNS = 4
 """Final archives per row of `archives_figure`."""
 
@@ -487,9 +472,7 @@ def schedule_styles(names: Sequence[str]) -> list[dict[str, Any]]:
     if len(names) > LEGEND_INSIDE:
         return series_styles(len(names))
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
-    return [
-        {"color": ORDER_COLORS.get(name, colors[(i + len(ORDER_COLORS)) % len(colors)])} for i, name in enumerate(names)
-    ]
+    return [{"color": COLORS.get(name, colors[(i + len(COLORS)) % len(colors)])} for i, name in enumerate(names)]
 
 
 REEVALUATION_PANELS = (

@@ -1,7 +1,8 @@
 """The paper's table beside ours: every cell's p-value, both, and a plain verdict.
 
 The paper's medians and p-values ship with the package (paper_table.json, transcribed from
-the paper's tables/pvalues.tex; `PAPER_SOURCE` names it): for Ant Omni, HalfCheetah and
+the paper's tables/pvalues.tex, its rows and columns named by the conditions' schedules,
+`smol_dsl.results.conditions`; `paper_source()` names it): for Ant Omni, HalfCheetah and
 Walker2d, the median final score of each of the eight conditions over 10 seeds, and the
 one-sided Mann-Whitney U p-value that the column's final scores (SMOL, SMOL-Reverse,
 SMOL-Human) are greater than the row's.
@@ -28,15 +29,15 @@ from importlib import resources
 from typing import TYPE_CHECKING, Any
 
 from smol_dsl.errors import counted
+from smol_dsl.results.conditions import BY_SCHEDULE, PAPER_SEEDS
+from smol_dsl.results.statistics import SIGNIFICANCE, latex_escape
 from smol_dsl.rundir.presets import preset_config
 
 if TYPE_CHECKING:
-    from smol_dsl.results.report import PValueTable
+    from smol_dsl.results.statistics import PValueTable
     from smol_dsl.rundir import RunRecord
 
-SIGNIFICANCE = 0.05
 VERDICTS = ("agrees", "same direction", "disagrees")
-PAPER_SEEDS = 10
 
 
 @cache
@@ -64,12 +65,12 @@ def paper_table(task: str) -> PaperTable | None:
     entry = _data()["tasks"].get(task)
     if entry is None:
         return None
-    rows = entry["rows"]
+    rows = {BY_SCHEDULE[schedule].name: row for schedule, row in entry["rows"].items()}
     return PaperTable(
         task,
         entry["metric"],
         {name: row["median"] for name, row in rows.items()},
-        {name: dict(row["pvalues"]) for name, row in rows.items()},
+        {name: {BY_SCHEDULE[column].name: p for column, p in row["pvalues"].items()} for name, row in rows.items()},
     )
 
 
@@ -175,10 +176,8 @@ class Comparison:
         return "\n".join(lines) + "\n"
 
     def latex(self) -> str:
-        from smol_dsl.results.report import _latex_escape
-
         lines = [
-            f"% {_latex_escape(self.summary())}",
+            f"% {latex_escape(self.summary())}",
             "\\begin{tabular}{l|l|c|c|l}",
             "\\toprule",
             "row & column & paper $p$ & our $p$ & verdict \\\\",
@@ -187,7 +186,7 @@ class Comparison:
         for cell in self.cells:
             ours = "-" if cell.ours is None else f"{cell.ours:.3e}"
             lines.append(
-                f"{_latex_escape(cell.row)} & {_latex_escape(cell.column)} & {cell.paper:.3e} & {ours} & "
+                f"{latex_escape(cell.row)} & {latex_escape(cell.column)} & {cell.paper:.3e} & {ours} & "
                 f"{cell.verdict} \\\\"
             )
         lines += ["\\bottomrule", "\\end{tabular}"]

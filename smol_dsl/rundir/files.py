@@ -2,7 +2,9 @@
 
 `atomic_write` writes a temporary file beside the target, fsyncs it and renames it over the
 target, so a process killed at any moment leaves the old file or the new one, never a torn
-one; an OSError names the file that could not be written. `read_text` reads a text file of
+one; an OSError names the file that could not be written. `write_together` does that for a
+set of files (a report's), renaming them only once all are written. This module is the only
+one of smol-dsl that renames files into place. `read_text` reads a text file of
 a run directory, or raises a RunDirectoryError that says why it cannot be used;
 `check_output_file` refuses an output file a command cannot write.
 """
@@ -45,6 +47,35 @@ def atomic_write(path: Path, write: Callable[[IO[bytes]], Any]) -> None:
         os.fsync(directory)
     finally:
         os.close(directory)
+
+
+def write_together(directory: Path, files: Mapping[str, bytes]) -> list[Path]:
+    """Write files (name -> bytes) into `directory`: every one to a temporary file there first,
+    then all renamed into place, so a failure (a full disk) before the renames changes
+    nothing and none is ever half-written; temporary files are removed whatever happens. An
+    OSError has `filename` set to the file that could not be written."""
+    temporaries: dict[str, Path] = {}
+    target = directory
+    try:
+        for name, data in files.items():
+            target = directory / name
+            temporaries[name] = directory / f".{name}.{os.getpid()}.tmp"
+            _write_bytes(temporaries[name], data)
+        for name, temporary in temporaries.items():
+            target = directory / name
+            os.replace(temporary, target)
+    except OSError as error:
+        raise OSError(error.errno, error.strerror or str(error), str(target)) from error
+    finally:
+        for temporary in temporaries.values():
+            with contextlib.suppress(OSError):
+                temporary.unlink(missing_ok=True)
+    return [directory / name for name in files]
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    with open(path, "wb") as file:
+        file.write(data)
 
 
 def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
