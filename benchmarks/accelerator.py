@@ -187,8 +187,7 @@ def fill_archive(engine: Any, config: RunConfig, seed: int) -> Any:
     import jax
     import jax.numpy as jnp
 
-    from smol_dsl.qdax.scoring import LANE
-    from smol_dsl.runner.map_elites import cvt_centroids
+    from smol_dsl.qdax.scoring import LANE, cvt_centroids
     from smol_dsl.tasks import task_spec
 
     spec = task_spec(config.task)

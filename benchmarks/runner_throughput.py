@@ -112,8 +112,8 @@ def main() -> None:
     from qdax.tasks.brax.v2.env_creators import create_brax_scoring_fn
     from qdax.utils.metrics import default_qd_metrics
 
+    from smol_dsl.qdax.scoring import cvt_centroids
     from smol_dsl.runner.engine import Engine, stack_runs
-    from smol_dsl.runner.map_elites import cvt_centroids
     from smol_dsl.tasks import make_task
     from smol_dsl.tasks.base import deterministic_init_state
 

@@ -22,9 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from smol_dsl.qdax.scoring import initial_key
+from smol_dsl.qdax.scoring import cvt_centroids, initial_key
 from smol_dsl.rundir.config import ISO_SIGMA, LINE_SIGMA
-from smol_dsl.runner.map_elites import RunStep, cvt_centroids, empty_archive, make_map_elites
+from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites
 from smol_dsl.tasks import make_task
 from smol_dsl.tasks.base import deterministic_init_state
 

@@ -18,6 +18,7 @@ import pytest
 from small_runs import CONFIG, FLAGS, cli, small_config, small_task
 
 import smol_dsl
+from smol_dsl.qdax.scoring import cvt_centroids
 from smol_dsl.rundir import REEVALUATION_FIELDS
 from smol_dsl.runner import (
     RunError,
@@ -28,7 +29,6 @@ from smol_dsl.runner import (
     schedule_key,
 )
 from smol_dsl.runner.engine import Engine, shared_engine, stack_runs
-from smol_dsl.runner.map_elites import cvt_centroids
 
 
 @pytest.fixture(scope="session")

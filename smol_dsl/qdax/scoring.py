@@ -254,8 +254,6 @@ def run_start(
     QDax loop given them (and then `key, sub = split(key)` per generation) follows the same
     random streams. Counts `smol-dsl run` refuses are refused alike (ValueError): a
     `batch_size` below 1, `num_centroids` below 2, fewer CVT samples than centroids."""
-    from qdax.core.containers.mapelites_repertoire import compute_cvt_centroids
-
     for name, value, least in (("batch_size", batch_size, 1), ("num_centroids", num_centroids, 2)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise ValueError(f"{name} is a whole number, not {value!r}")
@@ -267,17 +265,34 @@ def run_start(
             "each cell's centroid is a mean of samples"
         )
     task = as_task(task)
-    key, cvt_key, init_key = jax.random.split(jax.random.key(check_seed(seed, "seed")), 3)
-    centroids = compute_cvt_centroids(
-        num_descriptors=task.descriptor_size,
-        num_init_cvt_samples=num_init_cvt_samples,
-        num_centroids=num_centroids,
-        minval=list(task.descriptor_low),
-        maxval=list(task.descriptor_high),
-        key=cvt_key,
-    )
+    key, cvt_key, init_key = seed_keys(check_seed(seed, "seed"))
+    centroids = cvt_centroids(num_centroids, task.descriptor_low, task.descriptor_high, num_init_cvt_samples, cvt_key)
     genotypes = task.init_policies(initial_key(init_key), batch_size)
     return RunStart(key, centroids, genotypes, init_key)
+
+
+def seed_keys(seed: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """A run's keys from its seed, as `smol-dsl run --seed seed` splits it: the run's key,
+    its CVT centroids' key and its initial population's."""
+    key, cvt_key, init_key = jax.random.split(jax.random.key(seed), 3)
+    return key, cvt_key, init_key
+
+
+def cvt_centroids(
+    num_centroids: int, low: tuple[float, ...], high: tuple[float, ...], num_samples: int, key: jax.Array
+) -> jax.Array:
+    """QDax's CVT tessellation of the descriptor box [low, high] into `num_centroids` cells,
+    from `num_samples` uniform samples drawn with `key`."""
+    from qdax.core.containers.mapelites_repertoire import compute_cvt_centroids
+
+    return compute_cvt_centroids(
+        num_descriptors=len(low),
+        num_init_cvt_samples=num_samples,
+        num_centroids=num_centroids,
+        minval=list(low),
+        maxval=list(high),
+        key=key,
+    )
 
 
 def initial_key(key: jax.Array) -> jax.Array:

@@ -32,7 +32,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from smol_dsl.runner.config import RunError
 from smol_dsl.runner.footprint import _count
@@ -206,9 +206,9 @@ def measure_sweep(
 
 
 class _Warmup:
-    """The sweep's engine and inputs, as `Training` sets them up (padded runs, bodies,
-    episode starts, keys split from each seed), with every archive on one seed's centroids;
-    each method times one step of it."""
+    """The sweep's engine, course and state, made by the core's own functions
+    (`smol_dsl.runner.core`) but with every archive on one seed's centroids (the CVT is
+    timed once and counted per seed); each method times one step of it."""
 
     def __init__(
         self,
@@ -219,43 +219,30 @@ class _Warmup:
         clock: Callable[[], float],
     ) -> None:
         import jax
-        import jax.numpy as jnp
 
-        from smol_dsl.runner.engine import shared_engine, stack_runs
-        from smol_dsl.runner.map_elites import cvt_centroids
+        from smol_dsl.qdax.scoring import cvt_centroids, seed_keys
+        from smol_dsl.runner.core import plan_course
+        from smol_dsl.runner.engine import shared_engine
         from smol_dsl.runner.training import run_channels
-        from smol_dsl.seeds import schedule_key
         from smol_dsl.tasks import task_spec
 
         self.clock, self.batch_size = clock, config.batch_size
         began = clock()
         spec = task_spec(config.task)
-        _, cvt_key, _ = jax.random.split(jax.random.key(runs[0].config.seed), 3)  # as `Training` splits a seed
-        self.centroids = cvt_centroids(
+        _, cvt_key, _ = seed_keys(runs[0].config.seed)
+        centroids = cvt_centroids(
             config.num_centroids, spec.descriptor_low, spec.descriptor_high, config.num_init_cvt_samples, cvt_key
         )
-        jax.block_until_ready(self.centroids)
+        jax.block_until_ready(centroids)
         self.centroids_seconds = clock() - began
 
         self.setup_began = clock()
         channels = run_channels([run.schedule for run in runs])
         self.engine = engine = shared_engine(config.task, config, list(devices), runs_per_step, len(runs), channels)
-        padded = runs + [runs[-1]] * (engine.padded_runs(len(runs)) - len(runs))
-        seeds = [run.config.seed for run in padded]
-        boundary = min(1, config.num_phases - 1)  # the phase the first boundary enters
-        bodies = [
-            run.schedule.checked_phase_values(config.num_phases, schedule_key(run.config.seed), engine.channels)
-            for run in padded
-        ]
-        self.first_bodies = engine.put(jnp.asarray([body[0] for body in bodies], dtype=jnp.float32))
-        self.next_bodies = engine.put(jnp.asarray([body[boundary] for body in bodies], dtype=jnp.float32))
-        starts = {seed: engine.task.episode_start(seed) for seed in dict.fromkeys(seeds)}
-        self.starts = engine.put(stack_runs([starts[seed] for seed in seeds]))
-        self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
-        split = [jax.random.split(jax.random.key(seed), 3) for seed in seeds]
-        self.keys = engine.put(jnp.stack([three[0] for three in split]))
-        self.init_keys = engine.put(jnp.stack([three[2] for three in split]))
-        self.archives = engine.empty_archives(jnp.stack([self.centroids] * len(padded)))
+        self.course = plan_course(engine, runs, config)
+        self.centroids = dict.fromkeys(self.course.seeds, centroids)
+        self.next_phase = min(1, config.num_phases - 1)  # the phase the first boundary enters
+        self.state: Any = None
         self.chunks = 0
 
     def first_generation(self) -> float:
@@ -266,28 +253,33 @@ class _Warmup:
         import numpy as np
 
         from smol_dsl.qdax.reevaluation import reevaluation_chunks
+        from smol_dsl.runner.core import start
 
-        self.archives, *_ = self.engine.step(self.archives, self.first_bodies, self.starts, self.init_keys)
+        self.state, _ = start(self.engine, self.course, self.centroids)
         took = self.clock() - self.setup_began
-        filled = np.asarray(jax.device_get(self.archives.fitnesses)) > -np.inf
+        filled = np.asarray(jax.device_get(self.state.repertoires.fitnesses)) > -np.inf
         cells = [np.flatnonzero(row) for row in filled.reshape(len(filled), -1)]
         self.chunks = sum(1 for _ in reevaluation_chunks(cells, self.batch_size))  # 1, or 0 if none scored finite
         return took
 
     def generation(self) -> float:
-        """One generation of every run in its first body, as `Training.generation` makes it."""
+        """One generation of every run in its first body (`core.train_generation`)."""
+        from smol_dsl.runner.core import train_generation
+
         began = self.clock()
-        self.keys, subkeys = self.engine.split(self.keys)
-        self.archives, *_ = self.engine.step(self.archives, self.first_bodies, self.starts, subkeys)
+        self.state, _ = train_generation(self.engine, self.course, self.state)
         return self.clock() - began
 
     def reevaluation(self) -> float:
-        """The archives re-evaluated in the next phase's bodies into fresh ones (then dropped),
-        and their metrics, as at a phase boundary."""
+        """The archives re-evaluated in the next phase's bodies into fresh ones
+        (`core.cross_boundary`, its metrics included), then dropped."""
+        import jax
+
+        from smol_dsl.runner.core import cross_boundary
+
         began = self.clock()
-        self.keys, subkeys = self.engine.split(self.keys)
-        fresh = self.engine.reevaluate(self.archives, self.next_bodies, self.starts, self.extinctions, subkeys)[0]
-        self.engine.metrics(fresh)
+        crossed, _ = cross_boundary(self.engine, self.course, self.state, self.next_phase)
+        jax.block_until_ready(crossed.repertoires)
         return self.clock() - began
 
 

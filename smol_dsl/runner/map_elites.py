@@ -28,7 +28,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire, compute_cvt_centroids
+from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 from qdax.core.emitters.mutation_operators import isoline_variation
 from qdax.core.emitters.standard_emitters import MixingEmitter
 from qdax.core.map_elites import MAPElites
@@ -162,17 +162,3 @@ class RunStep:
         finite, into `fresh`; returns it, how many valid ones were non-finite and how many
         died (non-finite or by extinction)."""
         return insert_chunk(fresh, genotypes, fitnesses, descriptors, valid, extinction, death_key)
-
-
-def cvt_centroids(
-    num_centroids: int, low: tuple[float, ...], high: tuple[float, ...], num_samples: int, key: jax.Array
-) -> jax.Array:
-    """QDax's CVT tessellation of the descriptor box."""
-    return compute_cvt_centroids(
-        num_descriptors=len(low),
-        num_init_cvt_samples=num_samples,
-        num_centroids=num_centroids,
-        minval=list(low),
-        maxval=list(high),
-        key=key,
-    )

@@ -26,7 +26,8 @@ from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_run_directory, run_name
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import fit_sweep
-from smol_dsl.runner.training import PlannedRun, RunResult, check_runs, schedule_key, train
+from smol_dsl.runner.training import PlannedRun, RunResult, check_runs, train
+from smol_dsl.seeds import schedule_key
 
 __all__ = ["RunError", "RunResult", "run_experiment", "schedule_key"]
 

@@ -1,21 +1,20 @@
-"""The phase loop: runs trained together on the engine, logged, checkpointed, resumable.
+"""The host loop: runs trained together by the core, logged, checkpointed, resumable.
 
 `train` is what `run_experiment` (one run) and `run_sweep` (many) both do once their
-directories are set up. Phase k of N trains in the body of each run's schedule at phase k:
-every scheduled channel's factor at t = k / N (`Schedule.checked_phase_values`; `(GEAR,)`,
-the paper's alpha, for a file that declares no channels), a traced (channels,) array per
-run. At each phase boundary every archive is re-evaluated under its new body, thinned by
-its schedule's extinction probability and re-inserted into a fresh archive; a checkpoint
-is handed to the background writer right after, so an interrupted training resumes from
-its last boundary and ends with exactly the archives and metrics of an uninterrupted one.
-The next boundary waits for that write to end (when a whole phase was not long enough for
-it), so that no host copy of the archives is alive while they are held twice: at most two
-sets of archives are in memory at any time, what `footprint` sizes."""
+directories are set up. The algorithm is `smol_dsl.runner.core`'s (pure functions on one
+state of every run); `HostLoop` sequences them and does every side effect: each run's
+metrics.csv rows and the progress after every step, a checkpoint handed to the background
+writer right after each phase boundary (so an interrupted training resumes from its last
+boundary and ends with exactly the archives and metrics of an uninterrupted one), and at
+the end the runs' results and final archives. The next boundary waits for the write in
+flight to end (when a whole phase was not long enough for it), so that no host copy of
+the archives is alive while they are held twice: at most two sets of archives are in
+memory at any time, what `footprint` sizes.
+"""
 
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import time
 from collections.abc import Callable, Iterator
@@ -25,7 +24,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from smol_dsl import rundir
@@ -43,9 +41,17 @@ from smol_dsl.runner.checkpoint import (
     storage_error,
 )
 from smol_dsl.runner.config import ConfigError, RunError, check_config
-from smol_dsl.runner.engine import stack_runs
-from smol_dsl.runner.map_elites import cvt_centroids
-from smol_dsl.seeds import schedule_key
+from smol_dsl.runner.core import (
+    Course,
+    Outcome,
+    TrainingState,
+    cross_boundary,
+    failed_runs,
+    plan_course,
+    restore,
+    start,
+    train_generation,
+)
 from smol_dsl.tasks import task_spec
 
 if TYPE_CHECKING:
@@ -136,35 +142,6 @@ def owner(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
     }
 
 
-def metrics_row(
-    state: RunState,
-    metrics: dict[str, float],
-    body: dict[str, float],
-    event: str,
-    non_finite: int,
-    schema: rundir.MetricsSchema = rundir.METRICS_SCHEMA,
-    reevaluation: dict[str, int] | None = None,
-) -> dict[str, Any]:
-    """The metrics.csv row of a run's state after an event; `body` holds the body's columns
-    (`rundir.body_columns`: `alpha`, and a factor per other channel of the run's schedule),
-    `reevaluation` a re-evaluation's counts (`rundir.REEVALUATION_FIELDS`; empty otherwise)."""
-    counts = reevaluation or dict.fromkeys(rundir.REEVALUATION_FIELDS)
-    return rundir.metrics_row(
-        schema,
-        generation=state.generation,
-        phase=state.phase,
-        **body,
-        event=event,
-        evaluations=state.evaluations,
-        reevaluations=state.reevaluations,
-        coverage=metrics["coverage"],
-        max_fitness=metrics["max_fitness"],
-        qd_score=metrics["qd_score"],
-        non_finite=non_finite,
-        **counts,
-    )
-
-
 @contextlib.contextmanager
 def storage_errors(checkpoint: Path) -> Iterator[None]:
     """Turn an OSError from writing a run's files (a full disk, a file system gone read-only)
@@ -175,245 +152,167 @@ def storage_errors(checkpoint: Path) -> Iterator[None]:
         raise storage_error(error, checkpoint, fallback=checkpoint.parent) from None
 
 
-class Training:
-    """Runs of one task and settings trained together on an engine, generation by generation.
-
-    All runs reach their phase boundaries together. Per run: its own seed (CVT centroids,
-    episode start, keys), schedule (its body per phase, extinction) and archive; the batched
-    arrays (archives, keys, bodies, starts) have the runs axis first, padded to the engine's
-    runs axis with copies of the last run whose results are dropped. A body has a factor for
-    each of `channels` (`run_channels` of the runs' schedules; 1 for a channel a run's
-    schedule lacks), the engine's task's channels.
-    """
+class HostLoop:
+    """The side effects around the core's training (`smol_dsl.runner.core`): each run's
+    metrics rows (metrics.csv, appended as they come), progress, checkpoints (offered to a
+    background writer after each boundary) and the runs' results and final archives."""
 
     def __init__(
         self,
-        engine: Engine,
-        task: Task,
+        course: Course,
         runs: list[PlannedRun],
         config: RunConfig,
         checkpoint: Path | None,
-        progress: Progress | None = None,
-        channels: tuple[Channel, ...] | None = None,
+        progress: Progress | None,
     ) -> None:
-        self.engine, self.task, self.runs, self.config = engine, task, runs, config
+        self.course, self.runs, self.config = course, runs, config
         self.checkpoint, self.progress = checkpoint, progress
         self.owner = owner(runs, config)
-        self.channels = channels if channels is not None else run_channels([run.schedule for run in runs])
-        padded = runs + [runs[-1]] * (engine.padded_runs(len(runs)) - len(runs))
-        seeds = [run.config.seed for run in padded]
-        self.bodies = np.stack(  # (runs, phases, channels)
-            [
-                run.schedule.checked_phase_values(config.num_phases, schedule_key(run.config.seed), self.channels)
-                for run in padded
-            ]
-        )
-        self._placed_bodies: tuple[int, jax.Array | None] = (-1, None)  # the phase whose bodies are on the devices
+        channels = course.engine.channels
         self.schemas = [rundir.metrics_schema(run.schedule.channels) for run in runs]
         # each run's own bodies, the columns of its schedule's channels (its metrics.csv columns and result)
-        self._own_bodies = [
-            self.bodies[r][:, [self.channels.index(c) for c in run.schedule.channels]] for r, run in enumerate(runs)
+        self.own_bodies = [
+            course.bodies[r][:, [channels.index(c) for c in run.schedule.channels]] for r, run in enumerate(runs)
         ]
-        self.extinctions = engine.put(jnp.asarray([run.schedule.extinction for run in padded], dtype=jnp.float32))
-        self._seeds = seeds
-        self._phase_evaluations = np.zeros(len(runs), dtype=np.int64)  # the current phase's training batches
-        self._phase_non_finite = np.zeros(len(runs), dtype=np.int64)  # ... and how many of them were non-finite
-        self.repertoires: Any = None
-        self.keys: Any = None
-        self.states: list[RunState] = []
+        self.rows: list[list[dict[str, Any]]] = [[] for _ in runs]
         self.logs: list[MetricsLog] = []
-
-    @functools.cached_property
-    def starts(self) -> Any:
-        """Every run's episode start, on the devices; made when first needed (a finished run
-        resumed needs none: making them is most of what such a resume would cost)."""
-        starts = {seed: self.task.episode_start(seed) for seed in dict.fromkeys(self._seeds)}
-        return self.engine.put(stack_runs([starts[seed] for seed in self._seeds]))
-
-    # ------------------------------------------------------------------ start
-    def start(self, saved: tuple[Any, Any, list[RunState]] | None) -> None:
-        """Continue from a loaded checkpoint, or score every run's initial population; then
-        (re)write every run's metrics.csv."""
-        if saved is not None:
-            repertoires, keys, self.states = saved
-            extra = len(self._seeds) - len(self.runs)
-
-            def placed(x: jax.Array) -> jax.Array:  # leaf by leaf: at most one leaf's padded copy more
-                return self.engine.put(jnp.concatenate([x] + [x[-1:]] * extra) if extra else x)
-
-            self.repertoires, self.keys = jax.tree.map(placed, (repertoires, keys))
-        else:
-            self._initial_population()
-        self.logs = [
-            MetricsLog(run.directory / rundir.METRICS_FILE if run.directory is not None else None, state.rows, schema)
-            for run, state, schema in zip(self.runs, self.states, self.schemas, strict=True)
-        ]
-        self._show()
+        self.was_finished = False  # resumed from the checkpoint of a finished training
 
     def load(self) -> tuple[Any, Any, list[RunState]] | None:
         """The checkpoint's archives, keys and states, or None if there is none yet; a
         RunError for a damaged one or one of other runs."""
         if self.checkpoint is None:
             return None
-        template = self.task.init_policies(jax.random.key(0), 1)
+        task = self.course.engine.task
+        template = task.init_policies(jax.random.key(0), 1)
         return load_checkpoint(
-            self.checkpoint, template, len(self.runs), self.config.num_centroids, self.task.descriptor_size, self.owner
+            self.checkpoint, template, len(self.runs), self.config.num_centroids, task.descriptor_size, self.owner
         )
 
-    def _initial_population(self) -> None:
-        main_keys, init_keys, centroids = [], [], {}
-        for seed in self._seeds:
-            key, cvt_key, init_key = jax.random.split(jax.random.key(seed), 3)
-            main_keys.append(key)
-            init_keys.append(init_key)
-            if seed not in centroids:
-                centroids[seed] = cvt_centroids(
-                    self.config.num_centroids,
-                    self.task.descriptor_low,
-                    self.task.descriptor_high,
-                    self.config.num_init_cvt_samples,
-                    cvt_key,
-                )
-        archives = self.engine.empty_archives(jnp.stack([centroids[seed] for seed in self._seeds]))
-        self.repertoires, metrics, dropped, _ = self.engine.step(
-            archives, self._bodies_of(0), self.starts, self.engine.put(jnp.stack(init_keys))
-        )
-        self.keys = self.engine.put(jnp.stack(main_keys))
-        batch = self.config.batch_size
-        self.states = []
-        for r in range(len(self.runs)):
-            state = RunState(0, 0, batch, 0, int(dropped[r]), [])
-            row = metrics_row(state, _run_metrics(metrics, r), self._columns(r, 0), "init", dropped[r], self.schemas[r])
-            state.rows.append(row)
-            self.states.append(state)
-        if self.checkpoint is not None:
-            save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
+    def begin(self, state: TrainingState, saved_rows: list[list[dict[str, Any]]] | None, first: Outcome | None) -> None:
+        """(Re)write every run's metrics.csv: the rows a checkpoint saved, or the initial
+        population's row (then checkpointed)."""
+        if saved_rows is not None:
+            self.rows = [list(rows) for rows in saved_rows]
+        else:
+            assert first is not None
+            self.rows = [[self.row(state, first, r)] for r in range(len(self.runs))]
+            if self.checkpoint is not None:
+                save_checkpoint(self.checkpoint, state.repertoires, state.keys, self.run_states(state), self.owner)
+        self.logs = [
+            MetricsLog(run.directory / rundir.METRICS_FILE if run.directory is not None else None, rows, schema)
+            for run, rows, schema in zip(self.runs, self.rows, self.schemas, strict=True)
+        ]
+        self.show()
 
-    # ------------------------------------------------------------------ training
-    def train(self, stop_after_generation: int | None = None) -> None:
+    def row(self, state: TrainingState, outcome: Outcome, r: int) -> dict[str, Any]:
+        """Run r's metrics.csv row after `outcome`."""
+        event, metrics, non_finite, counts = outcome.of(r)
+        return rundir.metrics_row(
+            self.schemas[r],
+            generation=state.generation,
+            phase=state.phase,
+            **self.columns(r, state.phase),
+            event=event,
+            evaluations=int(state.evaluations[r]),
+            reevaluations=int(state.reevaluations[r]),
+            coverage=metrics["coverage"],
+            max_fitness=metrics["max_fitness"],
+            qd_score=metrics["qd_score"],
+            non_finite=non_finite,
+            **(counts or dict.fromkeys(rundir.REEVALUATION_FIELDS)),
+        )
+
+    def record(self, state: TrainingState, outcome: Outcome) -> None:
+        """Every run's row after `outcome`, logged; then progress."""
+        for r, (rows, log) in enumerate(zip(self.rows, self.logs, strict=True)):
+            row = self.row(state, outcome, r)
+            rows.append(row)
+            log.append(row)
+        self.show()
+
+    def show(self) -> None:
+        if self.progress is not None:
+            self.progress([rows[-1] for rows in self.rows], self.config.generations)
+
+    def columns(self, run: int, phase: int) -> dict[str, float]:
+        """A run's metrics.csv body columns in a phase (its schedule's channels)."""
+        return rundir.body_columns(self.runs[run].schedule.channels, self.own_bodies[run][phase])
+
+    def run_states(self, state: TrainingState, finished: bool = False) -> list[RunState]:
+        """What a checkpoint records of each run's progress (`RunState`)."""
+        return [
+            RunState(
+                state.generation,
+                state.phase,
+                int(state.evaluations[r]),
+                int(state.reevaluations[r]),
+                int(state.non_finite[r]),
+                self.rows[r],
+                finished,
+            )
+            for r in range(len(self.runs))
+        ]
+
+    def check_phase(self, state: TrainingState) -> None:
+        """Stop with a RunError if, in the phase that is ending, every evaluation of a run was
+        NaN or infinite (`core.failed_runs`): the physics cannot simulate the run's body, and
+        its archive would learn nothing (the checkpoint of the phase's start is kept)."""
+        for r in failed_runs(state):
+            body = ", ".join(f"{name} {value:.4g}" for name, value in self.columns(r, state.phase).items())
+            raise RunError(
+                f"{self.runs[r].name}: all {int(state.phase_evaluations[r])} evaluations of phase {state.phase} scored "
+                f"NaN or infinity, under the body {body}: the physics of {self.config.task} cannot simulate it, and "
+                f"training would go on with an empty archive; change the schedule (`smol-dsl check --task "
+                f"{self.config.task}` proves every actuator's and link's factor within the range the task's physics "
+                "takes)"
+            )
+
+    def train(self, state: TrainingState, stop_after_generation: int | None = None) -> TrainingState:
         """Train every run to the end of its budget (or to `stop_after_generation`, as an
         interruption would stop it, for tests); checkpoints reach the disk meanwhile."""
+        engine, course = self.course.engine, self.course
         with CheckpointWriter() as writer:
-            for generation in range(self.states[0].generation + 1, self.config.generations + 1):
+            for generation in range(state.generation + 1, self.config.generations + 1):
                 if stop_after_generation is not None and generation > stop_after_generation:
                     break
                 phase = self.config.phase_of_generation(generation)
-                if phase != self.states[0].phase:
-                    self.check_phase()
+                if phase != state.phase:
+                    self.check_phase(state)
                     # the last checkpoint's host copy is let go before the archives are held
                     # twice, so that memory never holds both (the sizing counts on it)
                     writer.flush()
-                    self.reevaluate(phase)
+                    state, outcome = cross_boundary(engine, course, state, phase)
+                    self.record(state, outcome)
                     if self.checkpoint is not None:
-                        arrays = partial(checkpoint_arrays, self.repertoires, self.keys, self.states, self.owner)
+                        states = self.run_states(state)
+                        arrays = partial(checkpoint_arrays, state.repertoires, state.keys, states, self.owner)
                         writer.offer(self.checkpoint, arrays)
-                self.generation(generation, phase)
-            if self.finished:
-                self.check_phase()
+                state, outcome = train_generation(engine, course, state)
+                self.record(state, outcome)
+            if state.generation >= self.config.generations:
+                self.check_phase(state)
+        return state
 
-    def check_phase(self) -> None:
-        """Stop with a RunError if, in the phase that is ending, every evaluation of a run was
-        NaN or infinite: the physics cannot simulate the run's body, and its archive would
-        learn nothing (the checkpoint of the phase's start is kept). Then count afresh."""
-        for r, run in enumerate(self.runs):
-            evaluated, lost = int(self._phase_evaluations[r]), int(self._phase_non_finite[r])
-            if evaluated and lost == evaluated:
-                phase = self.states[r].phase
-                body = ", ".join(f"{name} {value:.4g}" for name, value in self._columns(r, phase).items())
-                raise RunError(
-                    f"{run.name}: all {evaluated} evaluations of phase {phase} scored NaN or infinity, under the body "
-                    f"{body}: the physics of {self.config.task} cannot simulate it, and training would go on with an "
-                    f"empty archive; change the schedule (`smol-dsl check --task {self.config.task}` proves every "
-                    "actuator's and link's factor within the range the task's physics takes)"
-                )
-        self._phase_evaluations[:] = 0
-        self._phase_non_finite[:] = 0
-
-    def reevaluate(self, phase: int) -> None:
-        """Every archive re-scored in its run's body of `phase`, thinned by extinction; its
-        row counts what became of the elites."""
-        self.keys, subkeys = self.engine.split(self.keys)
-        self.repertoires, counts = self.engine.reevaluate(
-            self.repertoires, self._bodies_of(phase), self.starts, self.extinctions, subkeys
-        )
-        for r, state in enumerate(self.states):
-            state.phase = phase
-            state.reevaluations += int(counts.reevaluated[r])
-            state.non_finite += int(counts.non_finite[r])
-        per_run = [
-            {name: int(getattr(counts, name)[r]) for name in rundir.REEVALUATION_FIELDS} for r in range(len(self.runs))
-        ]
-        self._record(self.engine.metrics(self.repertoires), ["reevaluate"] * len(self.runs), counts.non_finite, per_run)
-
-    def generation(self, generation: int, phase: int) -> None:
-        """One generation of every run in its body of `phase`."""
-        self.keys, subkeys = self.engine.split(self.keys)
-        self.repertoires, metrics, dropped, reseeded = self.engine.step(
-            self.repertoires, self._bodies_of(phase), self.starts, subkeys
-        )
-        for r, state in enumerate(self.states):
-            state.generation = generation
-            state.evaluations += self.config.batch_size
-            state.non_finite += int(dropped[r])
-            self._phase_evaluations[r] += self.config.batch_size
-            self._phase_non_finite[r] += int(dropped[r])
-        self._record(metrics, ["reseed" if reseeded[r] else "train" for r in range(len(self.runs))], dropped)
-
-    def _bodies_of(self, phase: int) -> jax.Array:
-        """Every run's body in `phase`: (runs, channels) float32, put on the devices once a
-        phase rather than every generation."""
-        if self._placed_bodies[0] != phase:
-            self._placed_bodies = (phase, self.engine.put(jnp.asarray(self.bodies[:, phase], dtype=jnp.float32)))
-        return self._placed_bodies[1]
-
-    def _columns(self, run: int, phase: int) -> dict[str, float]:
-        """A run's metrics.csv body columns in a phase (its schedule's channels)."""
-        return rundir.body_columns(self.runs[run].schedule.channels, self._own_bodies[run][phase])
-
-    def _record(
-        self,
-        metrics: dict[str, np.ndarray],
-        events: list[str],
-        dropped: np.ndarray,
-        reevaluations: list[dict[str, int]] | None = None,
-    ) -> None:
-        for r, (state, log) in enumerate(zip(self.states, self.logs, strict=True)):
-            columns = self._columns(r, state.phase)
-            counts = reevaluations[r] if reevaluations is not None else None
-            row = metrics_row(state, _run_metrics(metrics, r), columns, events[r], dropped[r], self.schemas[r], counts)
-            state.rows.append(row)
-            log.append(row)
-        self._show()
-
-    def _show(self) -> None:
-        if self.progress is not None:
-            self.progress([state.rows[-1] for state in self.states], self.config.generations)
-
-    # ------------------------------------------------------------------ end
-    @property
-    def finished(self) -> bool:
-        return self.states[0].generation >= self.config.generations
-
-    def results(self, started: float) -> list[RunResult]:
+    def results(self, state: TrainingState, started: float) -> list[RunResult]:
         """Every run's result; when training is finished, its run directory gets archive.npz
         and, the first time, its checkpoint marked finished (and so does a sweep's own
         checkpoint)."""
-        newly_finished = self.finished and not all(state.finished for state in self.states)
-        if newly_finished:
-            for state in self.states:
-                state.finished = True
+        finished = state.generation >= self.config.generations
+        newly_finished = finished and not self.was_finished
         run_checkpoints = {run.directory / CHECKPOINT_FILE for run in self.runs if run.directory is not None}
+        states = self.run_states(state, finished=finished or self.was_finished)
         if newly_finished and self.checkpoint is not None and self.checkpoint not in run_checkpoints:
             # a sweep's own checkpoint first, before every run's archive is also held apart
-            save_checkpoint(self.checkpoint, self.repertoires, self.keys, self.states, self.owner)
-        host_keys = jax.device_get(jax.random.key_data(self.keys))
+            save_checkpoint(self.checkpoint, state.repertoires, state.keys, states, self.owner)
+        host_keys = jax.device_get(jax.random.key_data(state.keys))
         results = []
-        for r, (run, state) in enumerate(zip(self.runs, self.states, strict=True)):
-            repertoire = jax.tree.map(lambda x, r=r: run_of(x, r), self.repertoires)
-            if run.directory is not None and self.finished:
-                arrays = archive_arrays(self.repertoires, slice(r, r + 1))  # one host copy of one run at a time
+        for r, (run, run_state) in enumerate(zip(self.runs, states, strict=True)):
+            repertoire = jax.tree.map(lambda x, r=r: run_of(x, r), state.repertoires)
+            if run.directory is not None and finished:
+                arrays = archive_arrays(state.repertoires, slice(r, r + 1))  # one host copy of one run at a time
                 if newly_finished:
-                    single = stacked_checkpoint(arrays, host_keys[r : r + 1], [state], owner([run], run.config))
+                    single = stacked_checkpoint(arrays, host_keys[r : r + 1], [run_state], owner([run], run.config))
                     rundir.write_npz(run.directory / CHECKPOINT_FILE, single)
                 rundir.write_archive(
                     run.directory / rundir.ARCHIVE_FILE, {name: values[0] for name, values in arrays.items()}
@@ -422,9 +321,9 @@ class Training:
             results.append(
                 RunResult(
                     repertoire,
-                    state.rows,
+                    self.rows[r],
                     run.config,
-                    self._own_bodies[r],
+                    self.own_bodies[r],
                     run.schedule.channels,
                     run.directory,
                     seconds,
@@ -444,10 +343,6 @@ def run_of(stacked: jax.Array, run: int) -> jax.Array:
     return stacked[run]
 
 
-def _run_metrics(metrics: dict[str, np.ndarray], run: int) -> dict[str, float]:
-    return {name: float(values[run]) for name, values in metrics.items()}
-
-
 def train(
     engine: Engine,
     task: Task,
@@ -463,9 +358,17 @@ def train(
     """Train `runs` together from scratch or from `checkpoint`; return one result per run.
     From the first checkpoint on, a file that cannot be written is a RunError that says the
     last checkpoint is intact."""
-    training = Training(engine, task, runs, config, checkpoint, progress, engine.channels)
-    saved = training.load() if resume else None
+    course = plan_course(engine, runs, config)
+    loop = HostLoop(course, runs, config, checkpoint, progress)
+    saved = loop.load() if resume else None
     with storage_errors(checkpoint) if checkpoint is not None else contextlib.nullcontext():
-        training.start(saved)
-        training.train(stop_after_generation)
-        return training.results(started)
+        if saved is not None:
+            repertoires, keys, run_states = saved
+            state = restore(engine, course, repertoires, keys, run_states)
+            loop.was_finished = all(run.finished for run in run_states)
+            loop.begin(state, [run.rows for run in run_states], None)
+        else:
+            state, first = start(engine, course)
+            loop.begin(state, None, first)
+        state = loop.train(state, stop_after_generation)
+        return loop.results(state, started)
