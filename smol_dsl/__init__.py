@@ -19,11 +19,11 @@ from typing import TYPE_CHECKING, Any
 from smol_dsl.errors import ScheduleError, UserInputError
 
 if TYPE_CHECKING:
+    from smol_dsl.language.certificates import Certificate
     from smol_dsl.language.channels import GEAR, Channel
     from smol_dsl.language.curve import Curve
     from smol_dsl.language.library import library_names
     from smol_dsl.language.schedule import Schedule, load, parse
-    from smol_dsl.language.verify import Certificate
     from smol_dsl.tasks.anatomy import Anatomy
 
 __version__ = "0.1.0"
@@ -36,7 +36,7 @@ _LAZY = {
     "Schedule": "smol_dsl.language.schedule",
     "load": "smol_dsl.language.schedule",
     "parse": "smol_dsl.language.schedule",
-    "Certificate": "smol_dsl.language.verify",
+    "Certificate": "smol_dsl.language.certificates",
     "Anatomy": "smol_dsl.tasks.anatomy",
 }
 

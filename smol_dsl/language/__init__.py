@@ -19,7 +19,10 @@ modules, in the order a schedule goes through them:
 - `symbolic`: the exact form: the variable `T`, pieces, segments, each channel's curve, programs.
 - `shapes`: the shape registry, one unit per kind of segment (`shapes.base.Shape`), and the
   `SegmentContext` a unit compiles its segment with.
-- `verify`: the language's rules proven for each channel, and the `Certificate`.
+- `verify`: the language's rules proven for each channel, step by step.
+- `segment_rules`: steps 6 to 9 of verification: each segment's proven range against the rules
+  and its declarations.
+- `certificates`: what verification proves, as data: `Certificate` and its pieces and joins.
 - `prover`: extrema, monotonicity and domains of a function of t, by sympy or interval arithmetic,
   under CPU-time budgets.
 - `float32`: proof that the float32 program of a formula is finite and close to exact.

@@ -21,12 +21,14 @@ from smol_dsl.errors import ScheduleError
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.language.shapes import Drawn, Formula, Line
 from smol_dsl.language.symbolic import SymbolicCurve, SymbolicSegment, percent
-from smol_dsl.language.verify import Certificate, tail_start
+from smol_dsl.language.verify import tail_start
 
 # JAX is imported inside the functions that evaluate: parsing and checking a schedule never load it.
 if TYPE_CHECKING:
     import jax
     import sympy as sp
+
+    from smol_dsl.language.certificates import Certificate
 
 RANDOM_BIN_TOLERANCE = 1e-4
 """Float t within this many bins below a bin edge counts as on the edge (absorbs rounding)."""

@@ -17,8 +17,8 @@ sympy tree, node by node, by a running error analysis over interval arithmetic:
 
 The segment is split into sub-intervals (bisected where a bound fails) so that interval
 arithmetic's overestimation does not reject sensible expressions. The result is the largest
-error over the segment; `smol_dsl.language.verify` requires alpha minus that error to stay
-positive. `located_float32_error` is the proof as a shape's hook uses it (`Shape.float32_error`).
+error over the segment; `smol_dsl.language.segment_rules` requires alpha minus that error to
+stay positive. `located_float32_error` is the proof as a shape's hook uses it (`Shape.float32_error`).
 """
 
 from __future__ import annotations

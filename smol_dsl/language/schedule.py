@@ -23,12 +23,14 @@ from smol_dsl.language.compiler import compile_program
 from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
 from smol_dsl.language.symbolic import SymbolicCurve, SymbolicProgram, SymbolicSegment, percent
-from smol_dsl.language.verify import Certificate, verify
+from smol_dsl.language.verify import verify
 
 # JAX is imported inside the methods that evaluate: parsing and checking a schedule never load it.
 if TYPE_CHECKING:
     import jax
     import sympy as sp
+
+    from smol_dsl.language.certificates import Certificate
 
 _CONSTANT_TEXT = "0% .. 100%: tail\n"
 _LONE_CR = re.compile(r"\r(?!\n)")

@@ -86,6 +86,11 @@ class SymbolicSegment:
             return self.pieces[0].expr
         return sp.Piecewise(*[(p.expr, T < p.end) for p in self.pieces[:-1]], (self.pieces[-1].expr, True))
 
+    def value_at(self, where: Literal["start", "end"]) -> sp.Expr:
+        """The exact value at its start (of its first piece) or its end (of its last)."""
+        piece = self.pieces[0] if where == "start" else self.pieces[-1]
+        return piece.expr.subs(T, self.start if where == "start" else self.end)
+
     def describe_range(self) -> str:
         return f"{percent(self.start)} .. {percent(self.end)}"
 

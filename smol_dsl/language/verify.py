@@ -12,22 +12,22 @@ The certificate also covers the float32 program that evaluates alpha: each shape
 error (`Shape.float32_error`); a formula's sub-expressions are proven to stay in float32's
 range, with an error bound (`smol_dsl.language.float32`), and alpha minus that error stays
 positive.
+
+The certificate's types are in `smol_dsl.language.certificates`; the checks of each
+segment's proven range (steps 6 to 9) in `smol_dsl.language.segment_rules`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
 from itertools import pairwise
-from typing import Any, Literal
+from typing import TYPE_CHECKING
 
 import sympy as sp
 
 from smol_dsl.errors import ScheduleError, Span
-from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel
-from smol_dsl.language.float32_limits import SAFE_MAX, SAFE_MIN
+from smol_dsl.language.certificates import MIN_TAIL, Certificate, JoinCertificate, PieceCertificate
 from smol_dsl.language.prover import (
     Extrema,
     Monotone,
@@ -39,112 +39,24 @@ from smol_dsl.language.prover import (
     simplified,
     slope_sign,
 )
+from smol_dsl.language.segment_rules import (
+    SegmentRange,
+    above_zero,
+    declared_bounds,
+    declared_monotonicity,
+    finite_in_float32,
+)
 from smol_dsl.language.symbolic import (
     Piece,
     SymbolicCurve,
     SymbolicProgram,
     SymbolicSegment,
-    T,
     number_text,
     percent,
 )
 
-MIN_TAIL = sp.Rational(1, 10)
-"""The last 10% of the run must be at alpha = 1, or each channel at its final value (the
-paper's fair-comparison rule)."""
-
-AT_ZERO = {
-    "gear": "would switch them off or reverse them",
-    "mass": "would make the links weightless, or of negative mass",
-    "friction": "would make contacts frictionless, or push bodies along",
-    "gravity": "would switch gravity off, or reverse it",
-}
-"""What a factor of 0 or less would do to each kind of channel, for the hint of the positivity rule."""
-
-
-@dataclass(frozen=True)
-class PieceCertificate:
-    """What was proven about one smooth piece of alpha(t)."""
-
-    segment: int
-    kind: str
-    start: float
-    end: float
-    minimum: float
-    maximum: float
-    monotone: Monotone
-    exact: bool  # False when extrema come from an interval enclosure
-    float32_error: float = 0.0  # |float32 alpha - exact alpha| <= this, everywhere on the piece
-
-
-@dataclass(frozen=True)
-class JoinCertificate:
-    """Continuity where one segment meets the next."""
-
-    position: float
-    continuous: bool
-    jump: float | None  # None for a random segment (its value there is a random draw)
-
-
-@dataclass(frozen=True)
-class Certificate:
-    """The result of verifying one channel of a schedule: bounds, tail, joins, and each piece.
-
-    `str` writes its values as `alpha` for plain gear (the paper's name), else by the
-    channel's name: `tail: mass == 0.5 from 90% ...`.
-    """
-
-    minimum: float
-    maximum: float
-    tail_start: float
-    joins: tuple[JoinCertificate, ...]
-    pieces: tuple[PieceCertificate, ...]
-    bounds: tuple[float, float] | None
-    extinction: float
-    float32_error: float = 0.0
-    channel: Channel = GEAR
-    final: float = 1.0
-    """The channel's value over its tail."""
-
-    @property
-    def tail_fraction(self) -> float:
-        return 1.0 - self.tail_start
-
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dictionary of the certificate (the channel as its name)."""
-        data = asdict(self)
-        data["channel"] = self.channel.name
-        return json.loads(json.dumps(data))
-
-    def __str__(self) -> str:
-        q = self.channel.quantity
-        lines = [
-            f"  {q} in [{self.minimum:.6g}, {self.maximum:.6g}]   {q} > 0: proven"
-            + (f"   bounds {self.bounds[0]:.6g} .. {self.bounds[1]:.6g}: proven" if self.bounds else ""),
-            f"  tail: {q} == {self.final:.6g} from {percent(self.tail_start)} to 100% "
-            f"({percent(self.tail_fraction)} of the run, at least {percent(MIN_TAIL)} required): proven",
-            "  pieces:",
-        ]
-        for p in self.pieces:
-            extent = f"{percent(p.start)} .. {percent(p.end)}"
-            note = "" if p.exact else "  (interval enclosure)"
-            lines.append(
-                f"    #{p.segment:<2} {extent:<16} {p.kind:<15} {q} {p.minimum:.6g} .. {p.maximum:.6g}"
-                f"   {p.monotone}{note}"
-            )
-        if self.joins:
-            words = []
-            for j in self.joins:
-                if j.jump is None:
-                    words.append(f"{percent(j.position)} random")
-                elif j.continuous:
-                    words.append(f"{percent(j.position)} continuous")
-                else:
-                    words.append(f"{percent(j.position)} jump {j.jump:+.6g}")
-            lines.append("  joins: " + ", ".join(words))
-        lines.append(f"  extinction: {self.extinction:g}")
-        lines.append(f"  float32: every value finite, {q} within {self.float32_error:.2g} of exact and > 0: proven")
-        return "\n".join(lines)
+if TYPE_CHECKING:
+    from smol_dsl.language.channels import Channel
 
 
 def _fail(message: str, span: Span, hint: str) -> ScheduleError:
@@ -164,11 +76,11 @@ def verify_curve(curve: SymbolicCurve, extinction: sp.Expr = sp.S.Zero) -> Certi
     pieces: list[PieceCertificate] = []
     for segment in curve.segments:
         own = [_piece(curve, segment, piece) for piece in segment.pieces]  # 2-5 on each piece
-        proven = _SegmentRange.of(own)
-        _above_zero(curve, segment, proven)  # 6
-        _finite_in_float32(curve, segment, proven)  # 7
-        _declared_bounds(curve, segment, proven)  # 8
-        _declared_monotonicity(curve, segment, own, proven)  # 9
+        proven = SegmentRange.of(own)
+        above_zero(curve, segment, proven)  # 6
+        finite_in_float32(curve, segment, proven)  # 7
+        declared_bounds(curve, segment, proven)  # 8
+        declared_monotonicity(curve, segment, own, proven)  # 9
         pieces.extend(own)
     start_of_tail = tail_start(curve)  # 10
     joins = _joins(curve)  # 11
@@ -309,142 +221,6 @@ def _monotonicity(piece: Piece, expr: sp.Expr) -> Monotone:
     return slope_sign(expr, piece.start, piece.end)
 
 
-# ---------------------------------------------------------------- 6-9. each segment
-
-
-@dataclass(frozen=True)
-class _SegmentRange:
-    """A segment's proven range over its pieces, and how messages word it: an extremum that is
-    only an interval-arithmetic bound is said to be one, not claimed to be reached."""
-
-    low: float
-    high: float
-    error: float
-    """The largest float32 error bound of its pieces."""
-    goes_down: str
-    reaches: str
-    loose: str
-    """What a hint adds where an extremum is only a bound."""
-
-    @classmethod
-    def of(cls, pieces: list[PieceCertificate]) -> _SegmentRange:
-        lowest = min(pieces, key=lambda p: p.minimum)
-        highest = max(pieces, key=lambda p: p.maximum)
-        loose = (
-            ""
-            if lowest.exact and highest.exact
-            else (
-                "; its exact extrema could not be found, and the interval-arithmetic bound is not tight enough: "
-                "simplify the expression or split the segment"
-            )
-        )
-        return cls(
-            low=lowest.minimum,
-            high=highest.maximum,
-            error=max(p.float32_error for p in pieces),
-            goes_down="goes down to" if lowest.exact else "could not be shown to stay above its bound of",
-            reaches="reaches" if highest.exact else "could not be shown to stay below its bound of",
-            loose=loose,
-        )
-
-
-def _scales(curve: SymbolicCurve) -> str:
-    """What the channel's factor scales, for hints: `alpha scales the actuators' gear` for plain
-    gear (the paper's name for it), else in the channel's own words."""
-    if not curve.named:
-        return "alpha scales the actuators' gear"
-    return f"{curve.channel.name} scales {CHANNEL_KINDS[curve.channel.kind].scales}"
-
-
-def _above_zero(curve: SymbolicCurve, segment: SymbolicSegment, proven: _SegmentRange) -> None:
-    """6. The minimum is strictly positive."""
-    if not proven.low > 0:
-        raise _fail(
-            f"{curve.quantity} must stay above 0, but {segment.describe()} {proven.goes_down} {proven.low:.6g}",
-            segment.span,
-            f"{_scales(curve)}; 0 or less {AT_ZERO[curve.channel.kind]}" + proven.loose,
-        )
-
-
-def _finite_in_float32(curve: SymbolicCurve, segment: SymbolicSegment, proven: _SegmentRange) -> None:
-    """7. The value minus its float32 error stays positive, and its range lies within float32's
-    safe range (each piece's error bound is its shape's `float32_error`)."""
-    where, q, low, high, error = segment.describe(), curve.quantity, proven.low, proven.high, proven.error
-    if not low - error > 0:
-        raise _fail(
-            f"{q} must stay above 0, but in float32 {where} may go down to {low - error:.3g} "
-            f"(exactly it goes down to {low:.6g}, with rounding errors up to {error:.3g})",
-            segment.span,
-            "the expression loses too much precision in 32-bit floats: simplify it or rescale its parts",
-        )
-    if low < SAFE_MIN:
-        raise _fail(
-            f"{where} {proven.goes_down} {q} = {low:.3g}, too small for float32",
-            segment.span,
-            f"{_scales(curve)}; a value this small is 0 in 32-bit floats",
-        )
-    if high + error > SAFE_MAX:
-        raise _fail(
-            f"{where} {proven.reaches} {q} = {high:.3g}, beyond float32's safe range (2**120, about 1.3e36)",
-            segment.span,
-            f"use a modest {q}",
-        )
-
-
-def _declared_bounds(curve: SymbolicCurve, segment: SymbolicSegment, proven: _SegmentRange) -> None:
-    """8. LO <= minimum and maximum <= HI, where the channel declares `bounds LO .. HI`."""
-    if curve.bounds is None:
-        return
-    where, q, low, high = segment.describe(), curve.quantity, proven.low, proven.high
-    lo, hi, _ = curve.bounds
-    lo_f, hi_f = float(lo), float(hi)
-    declared = f"`bounds {number_text(lo)} .. {number_text(hi)}`"
-    if low < lo_f:
-        raise _fail(
-            f"{where} {proven.goes_down} {q} = {low:.6g}, {lo_f - low:.6g} below the declared bound {lo_f:.6g}",
-            segment.span,
-            f"raise the segment's values, or widen {declared}" + proven.loose,
-        )
-    if high > hi_f:
-        raise _fail(
-            f"{where} {proven.reaches} {q} = {high:.6g}, {high - hi_f:.6g} above the declared bound {hi_f:.6g}",
-            segment.span,
-            f"lower the segment's values, or widen {declared}" + proven.loose,
-        )
-
-
-def _declared_monotonicity(
-    curve: SymbolicCurve, segment: SymbolicSegment, pieces: list[PieceCertificate], proven: _SegmentRange
-) -> None:
-    """9. Every piece of a segment declared `increasing` or `decreasing` is constant or goes that way."""
-    if segment.monotone is None:
-        return
-    broken = [p for p in pieces if p.monotone not in {"constant", segment.monotone}]
-    if not broken:
-        return
-    where = segment.describe()
-    if all(p.monotone == "unknown" for p in broken):
-        raise _fail(
-            f"could not prove that {where} is {segment.monotone}",
-            segment.span,
-            "neither sympy nor interval arithmetic could decide the sign of the derivative; "
-            f"simplify the expression, split the segment, or remove `{segment.monotone}`",
-        )
-    if any(p.monotone == "random" for p in broken):
-        detail = "a random segment is not monotone"
-    else:
-        detail = (
-            f"{curve.quantity} goes from {number_text(_value_at(segment, 'start'))} at {percent(segment.start)} to "
-            f"{number_text(_value_at(segment, 'end'))} at {percent(segment.end)}, ranging over "
-            f"{proven.low:.6g} .. {proven.high:.6g}"
-        )
-    raise _fail(
-        f"{where} is declared {segment.monotone} but is not: {detail}",
-        segment.span,
-        f"fix the values, or remove `{segment.monotone}` if the shape is intended",
-    )
-
-
 # ---------------------------------------------------------------- 10-12. the whole curve
 
 
@@ -483,11 +259,6 @@ def tail_start(curve: SymbolicCurve) -> sp.Rational:
     return start
 
 
-def _value_at(segment: SymbolicSegment, where: Literal["start", "end"]) -> sp.Expr:
-    piece = segment.pieces[0] if where == "start" else segment.pieces[-1]
-    return piece.expr.subs(T, segment.start if where == "start" else segment.end)
-
-
 def _joins(curve: SymbolicCurve) -> tuple[JoinCertificate, ...]:
     """11. The jump at each boundary, continuous where sympy proves it exactly 0; a join next
     to a random segment is random."""
@@ -496,7 +267,7 @@ def _joins(curve: SymbolicCurve) -> tuple[JoinCertificate, ...]:
         if any(s.draws is not None and not s.shape.is_constant(s, curve.final) for s in (before, after)):
             joins.append(JoinCertificate(float(after.start), False, None))
             continue
-        jump = _value_at(after, "start") - _value_at(before, "end")
+        jump = after.value_at("start") - before.value_at("end")
         joins.append(JoinCertificate(float(after.start), is_zero(jump), real(jump) or 0.0))
     return tuple(joins)
 
