@@ -596,7 +596,7 @@ def test_check_task_refuses_an_unknown_task(capsys):
 
 
 def test_plot_draws_a_panel_per_channel():
-    from smol_dsl.results.figures import schedule_figure
+    from smol_dsl.results.schedule_figures import schedule_figure
 
     schedules = [smol_dsl.load(name) for name in ("growth", "low-gravity", "smol")]
     figure = schedule_figure(schedules, num_phases=20)
@@ -629,7 +629,7 @@ def test_plot_seed_draws_what_run_seed_draws(tmp_path, monkeypatch, capsys, libr
 
 
 def test_a_file_of_many_channels_plots_a_panel_per_kind_without_warnings(recwarn):
-    from smol_dsl.results.figures import schedule_figure
+    from smol_dsl.results.schedule_figures import schedule_figure
 
     links = ("torso", "thigh", "leg", "foot", "thigh_left", "leg_left", "foot_left", "right_leg", "left_leg")
     links += ("torso, thigh", "leg, foot")  # 11 mass channels: more than a legend inside a panel holds

@@ -1,4 +1,4 @@
-"""smol_dsl.results.figures and `smol-dsl plot`: a run's figures drawn from its run
+"""smol_dsl.results' figures and `smol-dsl plot`: a run's figures drawn from its run
 directory, archive maps of 1-D and more-than-2-D descriptors from plain arrays, schedule
 figures of many schedules and of odd names, and `plot`'s options."""
 
@@ -13,15 +13,10 @@ from synthetic_runs import many_schedules, refused, write_run
 
 import smol_dsl
 from smol_dsl.cli import main
-from smol_dsl.results.figures import (
-    archive_figure,
-    archive_view,
-    archives_figure,
-    draw_archive,
-    metrics_figure,
-    save_run_figures,
-    schedule_figure,
-)
+from smol_dsl.results.archive_maps import archive_figure, archive_view, draw_archive
+from smol_dsl.results.report_figures import archives_figure
+from smol_dsl.results.run_figures import metrics_figure, save_run_figures
+from smol_dsl.results.schedule_figures import schedule_figure
 from smol_dsl.rundir import FinalArchive, RunDirectoryError, read_run
 
 

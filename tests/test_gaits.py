@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 from small_runs import cli
 
-from smol_dsl.results import gaits
+from smol_dsl.results import gait_video, gaits
 from smol_dsl.rundir import load_archive
 
 STEPS = 30
@@ -157,12 +157,12 @@ def test_an_mp4_without_the_video_extra_is_refused_before_rendering(small_run, t
 
 
 def test_canvases_too_large_are_refused_and_many_tiles_make_a_grid():
-    assert gaits.check_canvas(4, 1, (320, 240), 30, 0.008, ".gif") == (2 * 320, 2 * (240 + gaits.BANNER))
-    assert gaits.check_canvas(110, 1, (640, 16), 30, 0.008, ".gif") == (11 * 640, 10 * (16 + gaits.BANNER))
+    assert gait_video.check_canvas(4, 1, (320, 240), 30, 0.008, ".gif") == (2 * 320, 2 * (240 + gait_video.BANNER))
+    assert gait_video.check_canvas(110, 1, (640, 16), 30, 0.008, ".gif") == (11 * 640, 10 * (16 + gait_video.BANNER))
     with pytest.raises(gaits.RenderError, match=r"over \.gif's largest side"):
-        gaits.check_canvas(1, 17, (4096, 16), 30, 0.008, ".gif")
+        gait_video.check_canvas(1, 17, (4096, 16), 30, 0.008, ".gif")
     with pytest.raises(gaits.RenderError, match="GiB of memory"):
-        gaits.check_canvas(4, 2, (1024, 1024), 20_000, 0.008, ".mp4")
+        gait_video.check_canvas(4, 2, (1024, 1024), 20_000, 0.008, ".mp4")
 
 
 def test_two_bodies_are_two_rollouts_in_a_frame_of_any_height(small_run, tmp_path, capsys):
@@ -188,8 +188,8 @@ def test_two_bodies_are_two_rollouts_in_a_frame_of_any_height(small_run, tmp_pat
     )
     assert code == 0, err
     frames, _ = gif_frames(out)
-    assert frames[0].shape == (481 + gaits.BANNER, 2 * 320, 3)
-    left, right = frames[-1][gaits.BANNER :, :320], frames[-1][gaits.BANNER :, 320:]
+    assert frames[0].shape == (481 + gait_video.BANNER, 2 * 320, 3)
+    left, right = frames[-1][gait_video.BANNER :, :320], frames[-1][gait_video.BANNER :, 320:]
     assert np.abs(left - right).mean() > 0.5  # not one rollout drawn twice
 
 

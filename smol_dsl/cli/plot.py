@@ -43,7 +43,8 @@ def _seed(text: str) -> int:
 
 
 def plot_schedules(args: argparse.Namespace) -> int:
-    from smol_dsl.results.figures import PAPER_FIGURE, save_figure, schedule_figure
+    from smol_dsl.results.figures import save_figure
+    from smol_dsl.results.schedule_figures import PAPER_FIGURE, schedule_figure
 
     names = args.schedules or list(PAPER_FIGURE)
     out = _figure_path(args.out, names)

@@ -72,13 +72,13 @@ def render_run(args: argparse.Namespace) -> int:
     from smol_dsl.cli.run import use_cpu_cores_as_devices
 
     use_cpu_cores_as_devices()  # the devices the run trained on: its scoring program, bit for bit
-    from smol_dsl.results import gaits
+    from smol_dsl.results import gait_video, gaits
     from smol_dsl.rundir import RunDirectoryError, load_archive, read_run
     from smol_dsl.runner.replay import replay_elites
     from smol_dsl.tasks import task_spec
 
     directory = _run_directory(Path(args.run_dir))
-    out = gaits.check_output(args.out if args.out is not None else directory / "gait.gif")
+    out = gait_video.check_output(args.out if args.out is not None else directory / "gait.gif")
     run = read_run(directory)
     if not run.finished or not (directory / "archive.npz").is_file():
         raise UsageError(
@@ -93,11 +93,11 @@ def render_run(args: argparse.Namespace) -> int:
     cells = _cells(args, archive, directory, task_spec(run.task))
     bodies = gaits.resolve_bodies(args.body or ["final"], run)
     steps = args.steps or run.config.episode_length
-    gaits.check_canvas(len(cells), len(bodies), args.size, steps, task_spec(run.task).step_seconds, out.suffix)
+    gait_video.check_canvas(len(cells), len(bodies), args.size, steps, task_spec(run.task).step_seconds, out.suffix)
     started = time.perf_counter()
     rendered = gaits.render_gaits(run, archive, cells, bodies, replay=replay_elites, steps=args.steps, size=args.size)
     title = f"{run.task} under {run.schedule}, seed {run.seed}"
-    gaits.write_gaits(out, rendered, title)
+    gait_video.write_gaits(out, rendered, title)
     seconds = time.perf_counter() - started
     for gait in rendered:
         descriptor = ", ".join(f"{x:.4f}" for x in gait.descriptor)

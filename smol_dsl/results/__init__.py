@@ -10,14 +10,18 @@ and report, and every figure.
 - `paper`: that table beside the paper's (paper_table.json);
 - `report`: `write_report(paths, out_dir)` writes the table with the figures and
   `page`'s index.html (`smol-dsl report`);
-- `figures`: `save_run_figures(directory)` draws a finished run directory's metrics.png and
-  archive.png from its files, and is what the CLI calls after `run` and `sweep` have
-  trained; `schedule_figure(schedules)` is the paper's Figure 2 (`smol-dsl plot`);
-  `results_figure` and `archives_figure` are the report's.
+- `figures`: what every figure shares (line styles, legends, `save_figure`);
+- `run_figures`: `save_run_figures(directory)` draws a finished run directory's metrics.png
+  and archive.png from its files, and is what the CLI calls after `run` and `sweep` have
+  trained; `archive_maps` draws an archive as a map, for it and the report;
+- `schedule_figures`: `schedule_figure(schedules)` is the paper's Figure 2 (`smol-dsl plot`);
+- `report_figures`: `results_figure` and `archives_figure` are the report's;
+- `gaits` chooses elites and draws them rolled out (`render_gaits`), and `gait_video`
+  writes them as GIF, MP4 or a web page (`smol-dsl render`).
 
 The names below load their module on first use, so `import smol_dsl.results` loads nothing
 else; `report` and the modules it uses import no JAX, Brax or QDax, so reporting on runs does not
-load them, and `figures` imports JAX only to evaluate schedules (`schedule_figure`).
+load them, and `schedule_figures` imports JAX only to evaluate schedules (`schedule_figure`).
 """
 
 from __future__ import annotations
@@ -26,9 +30,11 @@ from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from smol_dsl.results.figures import archives_figure, results_figure, save_run_figures, schedule_figure
     from smol_dsl.results.report import write_report
+    from smol_dsl.results.report_figures import archives_figure, results_figure
+    from smol_dsl.results.run_figures import save_run_figures
     from smol_dsl.results.runs import ReportError, load_runs
+    from smol_dsl.results.schedule_figures import schedule_figure
     from smol_dsl.results.statistics import pvalue_table
 
 _LAZY = {
@@ -36,10 +42,10 @@ _LAZY = {
     "load_runs": "smol_dsl.results.runs",
     "pvalue_table": "smol_dsl.results.statistics",
     "write_report": "smol_dsl.results.report",
-    "archives_figure": "smol_dsl.results.figures",
-    "results_figure": "smol_dsl.results.figures",
-    "save_run_figures": "smol_dsl.results.figures",
-    "schedule_figure": "smol_dsl.results.figures",
+    "archives_figure": "smol_dsl.results.report_figures",
+    "results_figure": "smol_dsl.results.report_figures",
+    "save_run_figures": "smol_dsl.results.run_figures",
+    "schedule_figure": "smol_dsl.results.schedule_figures",
 }
 
 __all__ = [

@@ -1,7 +1,7 @@
 """The report's files: `write_report(paths, out_dir)` reads and checks the runs
 (`smol_dsl.results.runs.load_runs`), makes the U-test table (`smol_dsl.results.statistics`)
 and compares it with the paper's (`smol_dsl.results.paper`), and writes table.md,
-pvalues.tex, scores.csv, the figures (`smol_dsl.results.figures`), the gaits and index.html
+pvalues.tex, scores.csv, the figures (`smol_dsl.results.report_figures`), the gaits and index.html
 (`smol_dsl.results.page`): everything is read and drawn before the first file is written,
 the files are written together and atomically, and an earlier report is replaced only with
 `force=True` (`--force`).
@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from smol_dsl.results.conditions import ABLATIONS
-from smol_dsl.results.figures import archives_figure, reevaluation_figure, results_figure
 from smol_dsl.results.page import index_page
 from smol_dsl.results.paper import compare_with_paper
+from smol_dsl.results.report_figures import archives_figure, reevaluation_figure, results_figure
 from smol_dsl.results.runs import METRICS, ReportError, environment_mixing, load_runs, median_run, runs_described
 from smol_dsl.results.statistics import SIGNIFICANCE, PValueTable, markdown_escape, pvalue_table
 from smol_dsl.rundir import CONFIG_FILE, METRICS_FILE, METRICS_SCHEMA, RunRecord, is_run_directory
@@ -198,6 +198,7 @@ def gait_files(
     by `replay` (`smol_dsl.runner.replay.replay_elites`): (file name, GIF, caption). Imports
     the renderer (MuJoCo) only when called."""
     from smol_dsl.results import gaits as rendering
+    from smol_dsl.results.gait_video import gif_bytes
     from smol_dsl.rundir import load_archive
 
     if replay is None:
@@ -213,7 +214,7 @@ def gait_files(
         slug = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-") or "schedule"
         described = "; ".join(f"cell {g.cell}: fitness {g.fitness:.2f}" for g in drawn)
         caption = f"{name}, median run (seed {run.seed}) by {metric.replace('_', ' ')}, final body: {described}"
-        shown.append((f"gaits-{index:02d}-{slug}.gif", rendering.gif_bytes(drawn), caption))
+        shown.append((f"gaits-{index:02d}-{slug}.gif", gif_bytes(drawn), caption))
     return shown
 
 
