@@ -44,7 +44,8 @@ def main() -> None:
     import jax
     import jax.numpy as jnp
 
-    from smol_dsl.runner.checkpoint import CheckpointWriter, RunState, checkpoint_arrays, save_checkpoint
+    from smol_dsl.rundir.checkpoint import RunState
+    from smol_dsl.runner.checkpoint import CheckpointWriter, checkpoint_arrays, save_checkpoint
     from smol_dsl.runner.engine import stack_runs
     from smol_dsl.runner.map_elites import empty_archive
     from smol_dsl.tasks import make_task

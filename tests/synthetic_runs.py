@@ -15,6 +15,7 @@ import numpy as np
 
 from smol_dsl import rundir
 from smol_dsl.cli import main
+from smol_dsl.qdax.phases import phase_of_generation
 from smol_dsl.rundir import ARCHIVE_FILE, METRICS_FILE, MetricsLog, write_archive
 from smol_dsl.rundir.archive import policy_shapes
 from smol_dsl.runner import preset_config
@@ -57,7 +58,7 @@ def write_run(
     rows = []
     reevaluations = 0
     for generation in range(last + 1):
-        phase = config.phase_of_generation(generation) if generation else 0
+        phase = phase_of_generation(generation, config.generations, config.num_phases) if generation else 0
         if rows and phase > rows[-1]["phase"] and reevaluate:  # a phase boundary's re-evaluation
             before = int(rng.integers(1, config.num_centroids))
             kept, moved, collided = (int(n) for n in rng.multinomial(before, [0.5, 0.2, 0.2, 0.1])[:3])

@@ -92,7 +92,7 @@ def test_metrics_csv_has_a_column_per_channel(three_channel_run):
 
 def test_progress_bar_shows_every_channel(three_channel_run, capsys):
     bar = ProgressBar(three_channel_run.config)
-    bar.update(three_channel_run.metrics[-1], three_channel_run.config.generations)
+    bar.update([three_channel_run.metrics[-1]], three_channel_run.config.generations)
     bar.close()
     shown = capsys.readouterr().err
     assert "alpha 1.000 mass 1.000 friction 1.000" in shown

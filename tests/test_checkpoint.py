@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from small_runs import FLAGS, RUN, cli, copy_of, run_environment, small_config
 
+from smol_dsl.rundir import RunDirectoryError
 from smol_dsl.runner import RunError, checkpoint
 from smol_dsl.runner.checkpoint import CheckpointWriter, host_copy, load_checkpoint
 from smol_dsl.runner.directories import prepare_run_directory
@@ -130,7 +131,8 @@ def test_a_checkpoint_shaped_for_another_policy_is_refused(small_run):
     other = make_task("walker2d", episode_length=10, hidden_layer_sizes=(8, 8))
     template = other.init_policies(jax.random.key(0), 1)
     with pytest.raises(
-        RunError, match=r"its genotypes/params/Dense_0/bias has shape \(1, 32, 64\), but this one needs \(1, 32, 8\)"
+        RunDirectoryError,
+        match=r"its genotypes/params/Dense_0/bias has shape \(1, 32, 64\), but this one needs \(1, 32, 8\)",
     ):
         load_checkpoint(small_run / "checkpoint.npz", template, 1, 32, 2)
 
@@ -138,5 +140,5 @@ def test_a_checkpoint_shaped_for_another_policy_is_refused(small_run):
 def test_sweep_checkpoint_that_is_not_one(tmp_path):
     path = tmp_path / "sweep-checkpoint.npz"
     path.write_bytes(b"not a zip file at all")
-    with pytest.raises(RunError, match="cannot be resumed from: it is damaged"):
+    with pytest.raises(RunDirectoryError, match="cannot be resumed from: it is damaged"):
         load_checkpoint(path, {"w": np.zeros((1, 3))}, 2, 16)

@@ -15,6 +15,7 @@ import pytest
 from small_runs import CONFIG, FLAGS, RUN, cli, copy_of
 
 from smol_dsl.cli import OPTIONS
+from smol_dsl.rundir.layout import sweep_checkpoint_file
 from smol_dsl.runner import RunError, preset_config, run_experiment
 from smol_dsl.runner.directories import prepare_sweep_directory
 from smol_dsl.runner.lock import DirectoryLock
@@ -131,7 +132,7 @@ def test_a_second_sweep_process_is_refused_but_parts_share_a_sweep(library, tmp_
     every = plan_sweep(schedules, [0, 1], CONFIG)
 
     def prepare(part, parts, resume=False):
-        name = "sweep-checkpoint.npz" if parts == 1 else f"sweep-checkpoint-{part}-of-{parts}.npz"
+        name = sweep_checkpoint_file((part, parts))
         return prepare_sweep_directory(out, every, every[part::parts], CONFIG, resume, parts > 1, name)
 
     with prepare(0, 2), prepare(1, 2):  # two processes of one sweep share its directory

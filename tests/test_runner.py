@@ -18,6 +18,7 @@ import pytest
 from small_runs import CONFIG, FLAGS, cli, small_config, small_task
 
 import smol_dsl
+from smol_dsl.qdax.phases import phase_of_generation
 from smol_dsl.qdax.scoring import cvt_centroids
 from smol_dsl.rundir import REEVALUATION_FIELDS
 from smol_dsl.runner import (
@@ -49,7 +50,7 @@ def test_phases_follow_the_schedule(human_run, library):
     for row in human_run.metrics:
         assert row["alpha"] == pytest.approx(float(expected[row["phase"]]))
         if row["event"] == "train":
-            assert row["phase"] == config.phase_of_generation(row["generation"])
+            assert row["phase"] == phase_of_generation(row["generation"], config.generations, config.num_phases)
     phases = [row["phase"] for row in human_run.metrics]
     assert phases == sorted(phases) and phases[-1] == config.num_phases - 1
     assert human_run.final["alpha"] == 1.0  # the last phase is on the standard body

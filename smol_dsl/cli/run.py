@@ -2,11 +2,12 @@
 seed) pair together.
 
 Both take the same steps, in `train`: check the task, --out and the seeds; load the schedules;
-make the settings and check them against each schedule; check the output directory; announce
-what will run; check that it fits the devices (and print what it needs); train with a
-progress bar; draw each finished run's figures; print a summary. `Run` and `Sweep` hold what
-differs: how seeds are given, where the output goes by default, what is announced, which
-runner trains and what the summary says.
+make the settings; plan the training with the runner's own checks and sizing
+(`plan_training`: the settings against each schedule, the processes' parts, the devices'
+memory); check the output directory; announce what will run (and print what it needs);
+train it with a progress bar (`train_planned`); draw each finished run's figures; print a
+summary. `Run` and `Sweep` hold what differs: how seeds are given, where the output goes by
+default, what is announced and what the summary says.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
     from smol_dsl.rundir import RunConfig
     from smol_dsl.runner import RunResult
-    from smol_dsl.runner.footprint import Footprint
 
 LARGE_BYTES = 1e9  # a run or sweep this big on a device gets its footprint printed, whatever the preset
 
@@ -162,36 +162,50 @@ class TrainingCommand(ABC):
     command: str
 
     def train(self, args: argparse.Namespace) -> int:
-        from smol_dsl.runner import check_config
         from smol_dsl.runner.directories import busy, check_out_dir, non_empty
+        from smol_dsl.runner.sweep import plan_training, train_planned
 
         use_cpu_cores_as_devices()
         common.check_task(args.task)
         common.check_out(args.out)
         self.check_seeds(args)
+        if args.no_measure and not args.dry_run:
+            raise UsageError("--no-measure goes with --dry-run: it leaves out the dry run's measured warm-up")
         schedules, errors = common.load_all(args.schedules)
         if errors:
             common.print_errors(errors)
             return EXIT_USAGE
         config = _config(args)
-        for schedule in schedules:
-            check_config(config, schedule)
         part = sweep_part(args)
         out = Path(args.out) if args.out is not None else self.default_out(args, schedules, config)
         plan = Plan(args, schedules, config, self.seeds(args, config), part, out)
-        self.check_plan(plan)  # what the training itself would refuse, --dry-run included
+        # every check of the training itself (settings, parts, memory), sized once: --dry-run's too
+        training = plan_training(
+            args.task,
+            schedules,
+            plan.seeds,
+            config,
+            out_dir=out,
+            devices=plan.devices,
+            runs_per_step=plan.runs_per_step,
+            part=part,
+            is_sweep=self.command == "sweep",
+        )
         check_out_dir(out)  # before anything compiles: a file, a device or a path under a file
         if not args.resume and part == (0, 1) and non_empty(out):
             raise busy(out)
         print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
-        footprint = _announce_footprint(plan, self.command)
+        footprint = training.footprint
+        if args.dry_run or config.preset == "paper" or footprint.device_bytes > LARGE_BYTES:
+            print(f"smol-dsl {self.command}: what this will need, by arithmetic before compiling:", file=sys.stderr)
+            for line in footprint.describe(out).splitlines():
+                print(f"  {line}", file=sys.stderr)
         if args.dry_run:
             if not args.no_measure:  # the warm-up: compiles and times the sweep's own engine, writes nothing
                 from smol_dsl.runner.estimate import describe_estimate, measure_sweep, warmup_note
 
-                runs_per_step = footprint.runs_per_step if plan.runs_per_step == -1 else plan.runs_per_step
                 print(f"smol-dsl {self.command}: {warmup_note(footprint.runs)}", file=sys.stderr)
-                measured = measure_sweep(config, schedules, plan.seeds, plan.devices, runs_per_step, part)
+                measured = measure_sweep(config, schedules, plan.seeds, plan.devices, training.runs_per_step, part)
                 print(f"smol-dsl {self.command}: measured on this machine:", file=sys.stderr)
                 for line in describe_estimate(config, measured, footprint.memory.label).splitlines():
                     print(f"  {line}", file=sys.stderr)
@@ -199,7 +213,13 @@ class TrainingCommand(ABC):
         note = self.note(args, config)
         if note:
             print(f"smol-dsl {self.command}: {note}", file=sys.stderr)
-        results = _with_progress(args, config, lambda progress: self.start(plan, footprint, progress))
+        results = _with_progress(
+            args,
+            config,
+            lambda progress: train_planned(
+                training, resume=args.resume, progress=progress, allow_environment_change=args.allow_environment_change
+            ),
+        )
         _draw_figures(results)
         print(self.summary(plan, results))
         return EXIT_OK
@@ -224,13 +244,6 @@ class TrainingCommand(ABC):
         """A note printed before training starts, if any."""
         return None
 
-    def check_plan(self, plan: Plan) -> None:  # noqa: B027 (a run has nothing more to check)
-        """Refuse, before anything compiles, a plan that training would refuse."""
-
-    @abstractmethod
-    def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
-        """Train (or resume), reporting to `progress`; the results of this process's runs."""
-
     @abstractmethod
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
         """What is printed when training has ended."""
@@ -251,9 +264,10 @@ class Run(TrainingCommand):
         return [config.seed]
 
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
-        from smol_dsl.runner.directories import run_name
+        from smol_dsl.rundir.layout import run_name
+        from smol_dsl.runner.directories import schedule_stem
 
-        return Path("runs") / run_name(args.task, schedules[0], config.seed)
+        return Path("runs") / run_name(args.task, schedule_stem(schedules[0]), config.seed)
 
     def announcement(self, plan: Plan) -> str:
         config, (schedule,) = plan.config, plan.schedules
@@ -271,22 +285,6 @@ class Run(TrainingCommand):
             "the quick preset is sized for about 2 minutes on 2 CPU cores; "
             "--preset paper runs the paper's experiment (1e7 evaluations; for a GPU)"
         )
-
-    def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
-        from smol_dsl.runner import run_experiment
-
-        args = plan.args
-        result = run_experiment(
-            args.task,
-            plan.schedules[0],
-            plan.config,
-            out_dir=plan.out,
-            resume=args.resume,
-            progress=progress,
-            devices=plan.devices,
-            allow_environment_change=args.allow_environment_change,
-        )
-        return [result]
 
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
         from smol_dsl.runner.progress import summary_line
@@ -316,13 +314,6 @@ class Sweep(TrainingCommand):
     def seeds(self, args: argparse.Namespace, config: RunConfig) -> list[int]:
         return list(range(args.first_seed, args.first_seed + args.seeds))
 
-    def check_plan(self, plan: Plan) -> None:
-        """The sweep's runs as `run_sweep` plans them: each (schedule, seed) once, in directories
-        of their own, and enough of them for every process."""
-        from smol_dsl.runner.sweep import plan_sweep, sweep_part
-
-        sweep_part(plan_sweep(plan.schedules, plan.seeds, plan.config), plan.part)
-
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
         return Path("runs") / f"{args.task}-sweep"
 
@@ -334,24 +325,6 @@ class Sweep(TrainingCommand):
             f"on {len(devices)} {devices[0].platform} device(s), preset {config.preset}: {config.evaluations} "
             f"evaluations per run in batches of {config.batch_size}, {config.num_phases} phases, "
             f"{config.num_centroids} cells, {config.episode_length}-step episodes"
-        )
-
-    def start(self, plan: Plan, footprint: Footprint, progress: Callable[..., None] | None) -> list[RunResult]:
-        from smol_dsl.runner import run_sweep
-
-        args = plan.args
-        return run_sweep(
-            args.task,
-            plan.schedules,
-            plan.seeds,
-            plan.config,
-            out_dir=plan.out,
-            resume=args.resume,
-            progress=progress,
-            devices=plan.devices,
-            runs_per_step=footprint.runs_per_step if plan.runs_per_step == -1 else plan.runs_per_step,
-            part=plan.part,
-            allow_environment_change=args.allow_environment_change,
         )
 
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
@@ -378,22 +351,6 @@ def _config(args: argparse.Namespace) -> RunConfig:
     )
 
 
-def _announce_footprint(plan: Plan, command: str) -> Footprint:
-    """Check that the run(s) fit the devices' memory, and print what they will need for the
-    paper preset or anything large; before anything compiles."""
-    from smol_dsl.runner.footprint import fit_sweep
-
-    if plan.args.no_measure and not plan.args.dry_run:
-        raise UsageError("--no-measure goes with --dry-run: it leaves out the dry run's measured warm-up")
-    config = plan.config
-    footprint = fit_sweep(config, len(plan.schedules), plan.seeds, plan.devices, plan.runs_per_step, plan.part)
-    if plan.args.dry_run or config.preset == "paper" or footprint.device_bytes > LARGE_BYTES:
-        print(f"smol-dsl {command}: what this will need, by arithmetic before compiling:", file=sys.stderr)
-        for line in footprint.describe(plan.out).splitlines():
-            print(f"  {line}", file=sys.stderr)
-    return footprint
-
-
 def _with_progress(
     args: argparse.Namespace, config: RunConfig, start: Callable[[Any], list[RunResult]]
 ) -> list[RunResult]:
@@ -412,7 +369,7 @@ def _with_progress(
 
 def _draw_figures(results: Sequence[RunResult]) -> None:
     """Each finished run directory's metrics.png and archive.png, after training."""
-    from smol_dsl.results.figures import save_run_figures
+    from smol_dsl.results.run_figures import save_run_figures
 
     for result in results:
         if result.out_dir is not None and result.final["generation"] >= result.config.generations:

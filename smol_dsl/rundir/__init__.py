@@ -6,18 +6,25 @@ verifies schedule.sched; reading config, metrics or archive does not).
 
 Modules, one concept each:
 
-- `layout`: the file names (`*_FILE`; `FILES` says what each holds), `is_run_directory`,
+- `layout`: the file names (`*_FILE`; `FILES` says what each holds; a sweep's `run_name`
+  and `sweep_checkpoint_file`), `is_run_directory`,
   `RunDirectoryError`;
-- `files`: atomic writes (`atomic_write`, `write_text`, `write_npz`) and `read_text`;
+- `files`: atomic writes (`atomic_write`, `write_text`, `write_npz`; their temporary files,
+  `remove_stale_temporaries`), `read_text` and `read_json_object`;
 - `config`: `RunConfig`, config.json, and its checked reader `read_config`;
 - `presets`: a run's settings by name (`PRESETS`: `paper`, `quick`), `preset_config`;
 - `metrics`: metrics.csv's columns (`METRICS_SCHEMA`, one `Column` per column; a run's body
   is one column per channel: `column_name`, `metrics_schema(channels)`, `scheduled_columns`,
-  and a row's values `body_columns`), `MetricsLog` and the checked reader `read_metrics`;
+  and a row's values `body_columns`) and its writer `MetricsLog`;
+- `metrics_reader`: the checked reader `read_metrics` (`schema_of_header`), and where the
+  final-body tail starts (`first_tail_phase`, `final_body_evaluations`);
 - `certificate`: certificate.json and .txt;
 - `archive`: archive.npz (`write_archive`, `load_archive`, `read_final_archive`);
 - `environment`: environment.json, what a run ran under (`describe_environment`,
   `environment_differences`);
+- `checkpoint`: a checkpoint's arrays (`checkpoint_contents`; `open_checkpoint` checks one
+  before it is loaded) and each run's progress in it (`RunState`);
+- `sweep`: sweep.json (`sweep_description`, `sweep_differences`);
 - `record`: a run directory as a whole (`write_run_files`; `read_run` -> `RunRecord`).
 
 Writing, for the runner (every file is written atomically, and an OSError names the file
@@ -94,14 +101,11 @@ from smol_dsl.rundir.metrics import (
     body_columns,
     channel_column,
     column_name,
-    final_body_evaluations,
-    first_tail_phase,
     metrics_row,
     metrics_schema,
-    read_metrics,
     scheduled_columns,
-    schema_of_header,
 )
+from smol_dsl.rundir.metrics_reader import final_body_evaluations, first_tail_phase, read_metrics, schema_of_header
 from smol_dsl.rundir.presets import PRESETS, preset_config
 from smol_dsl.rundir.record import RunRecord, read_run, write_run_files
 

@@ -1,5 +1,6 @@
-"""config.json: `RunConfig`, everything that determines a run besides its schedule's text,
-and `read_config`, which reads one back and checks every setting.
+"""config.json: `RunConfig`, everything that determines a run besides its schedule's text;
+`read_config`, which reads one back and checks every setting; and `setting_differences`,
+which names the settings a saved config.json and a requested one differ in.
 
 Imports neither JAX nor Brax nor sympy (`report` reads config.json with it)."""
 
@@ -12,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from smol_dsl.errors import UserInputError
+from smol_dsl.errors import Message, Setting, UserInputError
 from smol_dsl.rundir.files import read_text
 from smol_dsl.rundir.layout import CONFIG_FILE, RunDirectoryError, leave_out
 from smol_dsl.seeds import check_seed
@@ -52,18 +53,8 @@ class RunConfig:
         """Generations after the initial population (which is generation 0)."""
         return self.evaluations // self.batch_size - 1
 
-    def phase_of_generation(self, generation: int) -> int:
-        """The phase that generation g (1..generations) trains in: equal shares, in order."""
-        return ((generation - 1) * self.num_phases) // self.generations
-
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
-
-    @classmethod
-    def from_json(cls, text: str) -> RunConfig:
-        data = json.loads(text)
-        data["hidden_layer_sizes"] = tuple(data["hidden_layer_sizes"])
-        return cls(**data)
 
 
 CONFIG_TYPES = {"str": str, "int": int, "float": float, "tuple[int, ...]": list}
@@ -158,3 +149,28 @@ def _check_generations(path: Path, config: RunConfig, fix: str) -> None:
             f"{path}: {config.num_phases} phases but only {config.generations} generations; the runner refuses "
             f"such settings, so smol-dsl did not write this file; {fix}"
         )
+
+
+_MISSING = object()
+
+
+def setting_differences(saved: dict[str, Any], requested: dict[str, Any], what: str) -> list[Message]:
+    """One line per setting that differs between a saved config.json's object and a requested
+    one, in RunConfig's order, naming the setting: "batch_size: the run was started with 64,
+    not 128" (`what`: run or sweep)."""
+    order = [field.name for field in dataclasses.fields(RunConfig)]
+    names = order + sorted((set(saved) | set(requested)) - set(order))
+    lines = []
+    for name in names:
+        old, new = saved.get(name, _MISSING), requested.get(name, _MISSING)
+        if old != new:
+            lines.append(Setting(name) + f": the {what} was started with {_shown(old)}, not {_shown(new)}")
+    return lines
+
+
+def _shown(value: Any) -> str:
+    if value is _MISSING:
+        return "no such setting"
+    if isinstance(value, list):
+        return "[" + ", ".join(str(v) for v in value) + "]"
+    return str(value)

@@ -4,15 +4,20 @@
 target, so a process killed at any moment leaves the old file or the new one, never a torn
 one; an OSError names the file that could not be written. `write_together` does that for a
 set of files (a report's), renaming them only once all are written. This module is the only
-one of smol-dsl that renames files into place. `read_text` reads a text file of
+one of smol-dsl that renames files into place, and names the temporary files
+(`temporary_path`: `NAME.PID.tmp`, processes may share a directory) that
+`remove_stale_temporaries` deletes after a killed process. `read_text` reads a text file of
 a run directory, or raises a RunDirectoryError that says why it cannot be used;
-`check_output_file` refuses an output file a command cannot write.
+`check_output_file` refuses an output file a command cannot write; `read_json_object`
+reads the settings a run or sweep was started with, to resume it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -20,6 +25,24 @@ from typing import IO, Any
 import numpy as np
 
 from smol_dsl.rundir.layout import RunDirectoryError, leave_out
+
+_TEMPORARY = re.compile(r".+\.\d+\.tmp")
+
+
+def temporary_path(path: Path, hidden: bool = False) -> Path:
+    """The temporary file beside `path` that this process writes before renaming it into
+    place: `NAME.PID.tmp` (`.NAME.PID.tmp` if `hidden`)."""
+    return path.with_name(f"{'.' if hidden else ''}{path.name}.{os.getpid()}.tmp")
+
+
+def remove_stale_temporaries(directory: Path, prefix: str = "") -> None:
+    """Delete the temporary files (`temporary_path`) whose names start with `prefix` that a
+    killed process left in a directory this process has locked (a checkpoint's can be as
+    big as the checkpoint)."""
+    for path in directory.iterdir():
+        if path.name.startswith(prefix) and _TEMPORARY.fullmatch(path.name) and path.is_file():
+            with contextlib.suppress(OSError):
+                path.unlink()
 
 
 def atomic_write(path: Path, write: Callable[[IO[bytes]], Any]) -> None:
@@ -29,7 +52,7 @@ def atomic_write(path: Path, write: Callable[[IO[bytes]], Any]) -> None:
     it was; an OSError is raised with `filename` set to `path`, whatever file the OS named.
     """
     path = Path(path)
-    temporary = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # processes may share a directory
+    temporary = temporary_path(path)
     try:
         with open(temporary, "wb") as file:
             write(file)
@@ -59,7 +82,7 @@ def write_together(directory: Path, files: Mapping[str, bytes]) -> list[Path]:
     try:
         for name, data in files.items():
             target = directory / name
-            temporaries[name] = directory / f".{name}.{os.getpid()}.tmp"
+            temporaries[name] = temporary_path(directory / name, hidden=True)
             _write_bytes(temporaries[name], data)
         for name, temporary in temporaries.items():
             target = directory / name
@@ -102,7 +125,7 @@ def check_output_file(
         raise error(f"cannot write {out}: no such directory {out.parent}")
     if out.is_dir():
         raise error(f"cannot write {out}: it is a directory; give -o a file name, such as {out / example}")
-    probe = out.with_name(f"{out.name}.{os.getpid()}.tmp")
+    probe = temporary_path(out)
     try:
         with open(probe, "xb"):
             pass
@@ -131,3 +154,20 @@ def read_text(path: Path) -> str:
         raise RunDirectoryError(
             f"{path}: cannot be read ({error.strerror or error}); check its permissions, {leave_out(directory)}"
         ) from None
+
+
+def read_json_object(path: Path, what: str) -> dict[str, Any]:
+    """The JSON object of a file that records the settings a `what` (run or sweep) was started
+    with (config.json, sweep.json), for resuming it; a damaged one is a RunDirectoryError."""
+    try:
+        data = json.loads(path.read_bytes())
+    except (ValueError, UnicodeDecodeError, RecursionError) as error:
+        data, problem = None, f"not JSON: {error}"
+    else:
+        problem = "not a JSON object"
+    if not isinstance(data, dict):
+        raise RunDirectoryError(
+            f"{path} is damaged ({problem}); it records the settings the {what} was started with, so the {what} "
+            f"cannot be resumed without it: put back a good copy, or start the {what} afresh in another --out"
+        )
+    return data

@@ -2,11 +2,15 @@
 
 `FILES` lists every file of a run directory in the order the runner writes them,
 `SWEEP_FILES` a sweep directory's own; docs/runner.md's tables are generated from them.
-`RunDirectoryError` is the error of a run directory whose files cannot be used.
+`run_name` names a sweep's run directories (`schedule_of_run_name` reads one back), and
+`sweep_checkpoint_file` the checkpoint of each process of a sweep (`checkpoint_processes`
+reads the number back). `RunDirectoryError` is the error of a run directory whose files
+cannot be used.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -65,6 +69,37 @@ SWEEP_FILES = (
 """A sweep directory's own files, beside one run directory per (schedule, seed)."""
 RUN_MARKERS = (SCHEDULE_FILE, CERTIFICATE_FILE, ARCHIVE_FILE, CHECKPOINT_FILE)
 """Besides metrics.csv, files that make a directory with a config.json a run directory."""
+
+
+def run_name(task: str, schedule: str, seed: int) -> str:
+    """A run directory's name: TASK-SCHEDULE-seedSEED (SCHEDULE: the schedule file's stem, or
+    the schedule's name)."""
+    return f"{task}-{schedule}-seed{seed}"
+
+
+def schedule_of_run_name(name: str, task: str) -> str | None:
+    """The SCHEDULE of a `run_name` of `task`, or None for a name that is not one."""
+    match = re.fullmatch(rf"{re.escape(task)}-(.*)-seed-?\d+", name)
+    return match.group(1) if match else None
+
+
+_SWEEP_CHECKPOINT = re.compile(r"sweep-checkpoint(?:-(\d+)-of-(\d+))?\.npz")
+
+
+def sweep_checkpoint_file(part: tuple[int, int] = (0, 1)) -> str:
+    """The checkpoint file of the process that runs `part` = (k, n) of a sweep: its k-th of n
+    parts (`SWEEP_CHECKPOINT_FILE` for a sweep run by one process)."""
+    index, parts = part
+    return SWEEP_CHECKPOINT_FILE if parts == 1 else f"sweep-checkpoint-{index}-of-{parts}.npz"
+
+
+def checkpoint_processes(name: str) -> int | None:
+    """How many processes ran the sweep whose checkpoint file is `name` (a
+    `sweep_checkpoint_file`), or None for a name that is not one."""
+    match = _SWEEP_CHECKPOINT.fullmatch(name)
+    if match is None:
+        return None
+    return int(match.group(2) or 1)
 
 
 class RunDirectoryError(UserInputError):

@@ -39,13 +39,8 @@ from smol_dsl.rundir.layout import (
     RunDirectoryError,
     leave_out,
 )
-from smol_dsl.rundir.metrics import (
-    column_name,
-    final_body_evaluations,
-    first_tail_phase,
-    metrics_schema,
-    read_metrics,
-)
+from smol_dsl.rundir.metrics import column_name, metrics_schema
+from smol_dsl.rundir.metrics_reader import final_body_evaluations, first_tail_phase, read_metrics
 from smol_dsl.tasks import task_spec
 from smol_dsl.tasks.anatomy import resolve
 

@@ -4,12 +4,13 @@ Modules, one concept each: `config` (the checks of a run's settings; no JAX),
 `map_elites` (one run's step on QDax), `layout` (runs and populations on devices; no JAX),
 `engine` (that step over runs and devices), `core` (the algorithm: pure functions that
 start every run's state, advance it a generation and take it across a phase boundary),
-`training` (the host loop around the core: metrics, progress, checkpoints, resume), `run`
-and `sweep` (the two entry points), `directories` (setting up, locking and checking run and
+`training` (the host loop around the core: metrics, progress, checkpoints, resume), `sweep`
+(the one entry: a run or a sweep planned, checked and sized once, then trained; `run` is a
+sweep of one), `directories` (setting up, locking and checking run and
 sweep directories), `checkpoint`, `lock`, `footprint` (memory), `estimate` (`--dry-run`'s
 measurement), `progress` (the bar), `replay` (elites of a finished run rolled out again,
 for drawing their gaits). A run directory's files are `smol_dsl.rundir`'s (RunConfig and the
-presets included); figures are drawn from them after training (`smol_dsl.results.figures`).
+presets included); figures are drawn from them after training (`smol_dsl.results.run_figures`).
 Importing this package imports JAX only when an entry point is used.
 """
 

@@ -1,8 +1,9 @@
-"""Atomic checkpoints of runs trained together, and the final archive's `.npz` layout.
+"""Checkpoints of runs trained together: their archives and keys copied from the devices
+into a checkpoint's arrays, written in the background, and loaded back onto the devices.
 
-One format for `run` and `sweep`: the archives of R runs stacked along a runs axis (R = 1
-for a run directory's checkpoint.npz), each run's key, and its progress (counters and
-metrics rows) as JSON.
+The file's format is the run directory's (`smol_dsl.rundir.checkpoint`: the archives of R
+runs stacked along a runs axis, R = 1 for a run directory's checkpoint.npz, each run's key,
+and its progress as JSON); this module moves the arrays between it and JAX.
 
 A checkpoint is written to a temporary file in the run directory, flushed to disk and
 renamed over the previous one, so a run killed at any moment leaves either the old or the
@@ -13,25 +14,21 @@ of archives, and training goes on while it reaches the disk.
 
 from __future__ import annotations
 
-import dataclasses
 import errno
-import json
 import threading
-import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 
 from smol_dsl.qdax.scoring import LANE
-from smol_dsl.rundir import LANES, write_npz
+from smol_dsl.rundir import GENOTYPES, LANES, write_npz
+from smol_dsl.rundir.checkpoint import KEYS, RunState, checkpoint_contents, open_checkpoint
 from smol_dsl.runner.config import RunError
-
-KEYS = "keys"
 
 
 def _leaf_names(tree: Any) -> list[str]:
@@ -44,20 +41,6 @@ def _key_name(key: Any) -> str:
         if hasattr(key, attribute):
             return str(getattr(key, attribute))
     return str(key)
-
-
-@dataclass
-class RunState:
-    """One run's progress: what, besides its archive and key, it needs to continue exactly
-    where it stopped (its counters and every metrics row so far)."""
-
-    generation: int  # the last generation done (0: the initial population)
-    phase: int
-    evaluations: int
-    reevaluations: int
-    non_finite: int
-    rows: list[dict[str, Any]]
-    finished: bool = False
 
 
 def host_copy(leaf: Any, rows: int | slice | None = None) -> np.ndarray:
@@ -105,7 +88,7 @@ def archive_arrays(repertoire: MapElitesRepertoire, runs: int | slice | None = N
     (`host_copy`'s rows) only."""
     genotypes = repertoire.genotypes
     arrays = {
-        f"genotypes/{name}": host_copy(leaf, runs)
+        f"{GENOTYPES}{name}": host_copy(leaf, runs)
         for name, leaf in zip(_leaf_names(genotypes), jax.tree.leaves(genotypes), strict=True)
     }
     arrays["fitnesses"] = host_copy(repertoire.fitnesses, runs)
@@ -119,21 +102,17 @@ def archive_arrays(repertoire: MapElitesRepertoire, runs: int | slice | None = N
 def _repertoire_from(data: Any, genotype_template: Any) -> MapElitesRepertoire:
     """The archive saved by `archive_arrays`, its genotypes shaped like the template's; the
     lanes of a checkpoint written before archives kept them are unknown (-1)."""
-    leaves = [jax.numpy.asarray(data[f"genotypes/{name}"]) for name in _leaf_names(genotype_template)]
-    fitnesses = jax.numpy.asarray(data["fitnesses"])
-    lanes = data[LANES] if LANES in data.files else np.full(fitnesses.shape[: -1 if fitnesses.ndim > 2 else None], -1)
+    leaves = [jnp.asarray(data[f"{GENOTYPES}{name}"]) for name in _leaf_names(genotype_template)]
+    fitnesses = jnp.asarray(data["fitnesses"])
+    lanes = data[LANES] if LANES in data else np.full(fitnesses.shape[: -1 if fitnesses.ndim > 2 else None], -1)
     return MapElitesRepertoire(
         genotypes=jax.tree.unflatten(jax.tree.structure(genotype_template), leaves),
         fitnesses=fitnesses,
-        descriptors=jax.numpy.asarray(data["descriptors"]),
-        centroids=jax.numpy.asarray(data["centroids"]),
-        extra_scores={LANE: jax.numpy.asarray(lanes, dtype=jax.numpy.int32)},
+        descriptors=jnp.asarray(data["descriptors"]),
+        centroids=jnp.asarray(data["centroids"]),
+        extra_scores={LANE: jnp.asarray(lanes, dtype=jax.numpy.int32)},
         keys_extra_scores=(LANE,),
     )
-
-
-def _progress(state: RunState) -> dict[str, Any]:
-    return dataclasses.asdict(state)
 
 
 class CheckpointWriter:
@@ -244,109 +223,6 @@ def storage_error(error: OSError, checkpoint: Path | None, fallback: Path | None
     return RunError(f"cannot write {target}: {reason}; {then}")
 
 
-def damaged_checkpoint(path: Path, problem: str) -> RunError:
-    return RunError(
-        f"{path} cannot be resumed from: {problem}. Checkpoints are written whole, so it was changed "
-        "outside smol-dsl (a partial copy, a disk error, a file from another run): put back this run's own "
-        f"checkpoint, or delete {path.name} and run the same command with --resume to start the run over"
-    )
-
-
-def _load(
-    path: Path,
-    genotype_template: Any,
-    layout: tuple[int | None, ...],
-    descriptors: int | None,
-    owner: dict[str, Any] | None = None,
-) -> tuple[MapElitesRepertoire, jax.Array, Any] | None:
-    """An archive, its key(s) and the progress JSON saved at path, or None if there is none.
-
-    `layout` is the leading axes every archive array must have, (runs, cells);
-    `descriptors` the descriptor dimension. A file that cannot be read as
-    such a checkpoint (truncated, corrupted, from another task) is a RunError naming it, and
-    so is one whose recorded `owner` is not the given one (copied from another run).
-    """
-    if not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            _check_layout(path, data, genotype_template, layout, descriptors)
-            if owner is not None and "owner" in data.files:  # a checkpoint that names no owner is not checked
-                _check_owner(path, json.loads(str(data["owner"])), owner)
-            repertoire = _repertoire_from(data, genotype_template)
-            key = jax.random.wrap_key_data(jax.numpy.asarray(data[KEYS]))
-            return repertoire, key, json.loads(str(data["progress"]))
-    except (ValueError, KeyError, EOFError, TypeError, IndexError, zipfile.BadZipFile) as error:
-        raise damaged_checkpoint(path, f"it is damaged ({type(error).__name__}: {error})") from None
-    except OSError as error:
-        if error.errno is not None:  # could not be read (permissions, I/O): the OS's own error
-            raise
-        raise damaged_checkpoint(path, f"it is damaged ({error})") from None
-
-
-def _check_layout(
-    path: Path, data: Any, template: Any, layout: tuple[int | None, ...], descriptors: int | None
-) -> None:
-    """Refuse a checkpoint whose arrays are not shaped like this run's (another task, another
-    policy network, another number of cells or runs): loading it would fail deep inside JAX.
-    A None in `layout` takes the saved archive's size on that axis."""
-    if "fitnesses" in data.files:
-        saved = data["fitnesses"].shape
-        layout = tuple(saved[i] if n is None and i < len(saved) else n for i, n in enumerate(layout))
-    expected = {
-        f"genotypes/{name}": layout + tuple(leaf.shape[1:])
-        for name, leaf in zip(_leaf_names(template), jax.tree.leaves(template), strict=True)
-    }
-    expected["fitnesses"] = (*layout, 1)
-    if LANES in data.files:  # written since archives keep every elite's lane
-        expected[LANES] = layout
-    expected["key_data"] = layout[:-1] + tuple(jax.random.key_data(jax.random.key(0)).shape)
-    if descriptors is not None:
-        expected["descriptors"] = expected["centroids"] = (*layout, descriptors)
-    missing = sorted(set(expected) - {"key_data"} - set(data.files)) + ([] if KEYS in data.files else [KEYS])
-    if "progress" not in data.files:
-        missing.append("progress")
-    if missing:
-        raise damaged_checkpoint(
-            path, f"it lacks {', '.join(missing[:3])}{' ...' if len(missing) > 3 else ''} (is it from another task?)"
-        )
-    for name, shape in expected.items():
-        actual = data[KEYS if name == "key_data" else name].shape
-        if name == "fitnesses" and actual == layout:
-            continue  # (cells,) is as good as (cells, 1)
-        if actual != shape:
-            shown = KEYS if name == "key_data" else name
-            raise damaged_checkpoint(
-                path,
-                f"its {shown} has shape {actual}, but this one needs {shape} (is it from another task, or "
-                "another run?)",
-            )
-
-
-def _check_owner(path: Path, saved: Any, owner: dict[str, Any]) -> None:
-    if saved == owner:
-        return
-    differences = []
-    if isinstance(saved, dict):
-        for part in sorted(set(saved) | set(owner)):
-            old, new = saved.get(part), owner.get(part)
-            if isinstance(old, dict) and isinstance(new, dict):
-                differences += [
-                    f"{name} {_brief(old.get(name))}, not {_brief(new.get(name))}"
-                    for name in sorted(set(old) | set(new))
-                    if old.get(name) != new.get(name)
-                ]
-            elif old != new:
-                differences.append(f"another {part}")
-    shown = "; ".join(differences[:4]) or "another run"
-    raise damaged_checkpoint(path, f"it was written by another run ({shown})")
-
-
-def _brief(value: Any) -> str:
-    text = json.dumps(value) if not isinstance(value, str) else value
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
 def checkpoint_arrays(
     repertoires: MapElitesRepertoire, keys: jax.Array, states: list[RunState], owner: dict[str, Any] | None = None
 ) -> dict[str, np.ndarray]:
@@ -355,22 +231,9 @@ def checkpoint_arrays(
     key, counters and metrics rows (all at the same generation), and `owner`, the runs it
     belongs to; copied to host memory."""
     runs = len(states)
-    return stacked_checkpoint(
+    return checkpoint_contents(
         archive_arrays(repertoires, runs), host_copy(jax.random.key_data(keys), runs), states, owner
     )
-
-
-def stacked_checkpoint(
-    archives: dict[str, np.ndarray], key_data: np.ndarray, states: list[RunState], owner: dict[str, Any] | None = None
-) -> dict[str, np.ndarray]:
-    """`checkpoint_arrays` of archives and keys already in host memory (`archive_arrays`
-    of stacked archives, and the keys' `key_data`), one per state."""
-    arrays = dict(archives)
-    arrays["keys"] = key_data
-    arrays["progress"] = np.asarray(json.dumps([_progress(state) for state in states]))
-    if owner is not None:
-        arrays["owner"] = np.asarray(json.dumps(owner))
-    return arrays
 
 
 def save_checkpoint(
@@ -393,15 +256,16 @@ def load_checkpoint(
     owner: dict[str, Any] | None = None,
 ) -> tuple[MapElitesRepertoire, jax.Array, list[RunState]] | None:
     """The stacked archives, keys and per-run states saved by save_checkpoint for `num_runs`
-    runs of `num_cells` cells, or None if there is none; a RunError for a damaged one, or
-    one that other runs (`owner`) wrote."""
-    loaded = _load(path, genotype_template, (num_runs, num_cells), num_descriptors, owner)
-    if loaded is None:
-        return None
-    repertoires, keys, progress = loaded
-    if not isinstance(progress, list) or len(progress) != num_runs:
-        raise damaged_checkpoint(path, f"it does not hold progress for {num_runs} run{'s' if num_runs > 1 else ''}")
-    try:
-        return repertoires, keys, [RunState(**p) for p in progress]
-    except (TypeError, AttributeError) as error:
-        raise damaged_checkpoint(path, f"its progress record is damaged ({error})") from None
+    runs of `num_cells` cells (None: as saved), shaped like `genotype_template`'s policies,
+    or None if there is none; a RunDirectoryError for a damaged one, or one that other runs
+    (`owner`) wrote."""
+    genotypes = {
+        name: tuple(leaf.shape[1:])
+        for name, leaf in zip(_leaf_names(genotype_template), jax.tree.leaves(genotype_template), strict=True)
+    }
+    key_shape = tuple(jax.random.key_data(jax.random.key(0)).shape)
+    with open_checkpoint(path, genotypes, (num_runs, num_cells), num_descriptors, key_shape, owner) as saved:
+        if saved is None:
+            return None
+        data, states = saved
+        return _repertoire_from(data, genotype_template), jax.random.wrap_key_data(jnp.asarray(data[KEYS])), states

@@ -9,7 +9,7 @@ shows progress. `smol_dsl.runner.training` is the host loop around it, which doe
     course = plan_course(engine, runs, config)       # bodies, starts, extinctions: fixed
     state, outcome = start(engine, course)            # the initial population of every run
     for generation in range(1, config.generations + 1):
-        phase = config.phase_of_generation(generation)
+        phase = phase_of_generation(generation, config.generations, config.num_phases)
         if phase != state.phase:                      # a new body: re-evaluate every archive
             state, outcome = cross_boundary(engine, course, state, phase)
         state, outcome = train_generation(engine, course, state)
@@ -40,8 +40,8 @@ from smol_dsl.seeds import schedule_key
 if TYPE_CHECKING:
     from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 
+    from smol_dsl.rundir.checkpoint import RunState
     from smol_dsl.rundir.config import RunConfig
-    from smol_dsl.runner.checkpoint import RunState
     from smol_dsl.runner.engine import Engine
     from smol_dsl.runner.training import PlannedRun
 

@@ -12,14 +12,12 @@ CLI words as its option.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
-import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from smol_dsl.errors import Message, Setting
+from smol_dsl.errors import Message
 from smol_dsl.rundir import (
     CONFIG_FILE,
     ENVIRONMENT_FILE,
@@ -32,8 +30,11 @@ from smol_dsl.rundir import (
     latest_environment,
     record_environment_change,
     write_run_files,
-    write_text,
 )
+from smol_dsl.rundir.config import setting_differences
+from smol_dsl.rundir.files import read_json_object, remove_stale_temporaries
+from smol_dsl.rundir.layout import checkpoint_processes
+from smol_dsl.rundir.sweep import SweepRun, read_sweep_file, sweep_description, sweep_differences, write_sweep_file
 from smol_dsl.runner.checkpoint import write_failure
 from smol_dsl.runner.config import RunError
 from smol_dsl.runner.lock import DirectoryLock
@@ -43,10 +44,9 @@ if TYPE_CHECKING:
     from smol_dsl.runner.training import PlannedRun
 
 
-def run_name(task: str, schedule: Schedule, seed: int) -> str:
-    """A run directory's name: TASK-SCHEDULE-seedS (SCHEDULE: the file's stem, or its name)."""
-    stem = Path(schedule.path).stem if schedule.path else schedule.name
-    return f"{task}-{stem}-seed{seed}"
+def schedule_stem(schedule: Schedule) -> str:
+    """What a run's directory name (`run_name`) calls its schedule: the file's stem, or its name."""
+    return Path(schedule.path).stem if schedule.path else schedule.name
 
 
 def out_path(out_dir: str | Path | None) -> Path | None:
@@ -238,72 +238,6 @@ def set_up(directory: Path, write: Callable[[], Any]) -> None:
         ) from None
 
 
-def read_json_object(path: Path, what: str) -> dict[str, Any]:
-    """The JSON object in path (a run's config.json, a sweep's sweep.json), or a RunError
-    that names the file as damaged."""
-    try:
-        data = json.loads(path.read_bytes())
-    except (ValueError, UnicodeDecodeError) as error:
-        data, problem = None, f"not JSON: {error}"
-    else:
-        problem = "not a JSON object"
-    if not isinstance(data, dict):
-        raise RunError(
-            f"{path} is damaged ({problem}); it records the settings the {what} was started with, so the {what} "
-            f"cannot be resumed without it: put back a good copy, or start the {what} afresh in another --out"
-        )
-    return data
-
-
-_MISSING = object()
-
-
-def setting_differences(saved: dict[str, Any], requested: dict[str, Any], what: str) -> list[Message]:
-    """One line per setting that differs between a saved config.json and the one requested,
-    in RunConfig's order, naming the setting: "batch_size: the run was started with 64, not 128"."""
-    order = [field.name for field in dataclasses.fields(RunConfig)]
-    names = order + sorted((set(saved) | set(requested)) - set(order))
-    lines = []
-    for name in names:
-        old, new = saved.get(name, _MISSING), requested.get(name, _MISSING)
-        if old != new:
-            lines.append(Setting(name) + f": the {what} was started with {_shown(old)}, not {_shown(new)}")
-    return lines
-
-
-def _shown(value: Any) -> str:
-    if value is _MISSING:
-        return "no such setting"
-    if isinstance(value, list):
-        return "[" + ", ".join(str(v) for v in value) + "]"
-    return str(value)
-
-
-_TEMPORARY = re.compile(r".+\.\d+\.tmp")
-
-
-def remove_stale_temporaries(directory: Path, prefix: str = "") -> None:
-    """Delete the temporary files a killed process left in a directory this process has
-    locked (a checkpoint's can be as big as the checkpoint)."""
-    for path in directory.iterdir():
-        if path.name.startswith(prefix) and _TEMPORARY.fullmatch(path.name) and path.is_file():
-            with contextlib.suppress(OSError):
-                path.unlink()
-
-
-def sweep_description(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:
-    shared = json.loads(config.to_json())
-    del shared["seed"]
-    return {
-        "task": config.task,
-        "config": shared,
-        "runs": [
-            {"name": run.name, "schedule": run.schedule.name, "seed": run.config.seed, "source": run.schedule.source}
-            for run in runs
-        ],
-    }
-
-
 def prepare_sweep_directory(
     directory: Path,
     every: list[PlannedRun],
@@ -324,7 +258,9 @@ def prepare_sweep_directory(
     can write them at the same time.
     """
     check_out_dir(directory)
-    description = sweep_description(every, config)
+    description = sweep_description(
+        config, [SweepRun(run.name, run.schedule.name, run.config.seed, run.schedule.source) for run in every]
+    )
     locks = contextlib.ExitStack()
     try:
         if resume:
@@ -335,7 +271,7 @@ def prepare_sweep_directory(
             locks.enter_context(_lock_sweep_directory(directory, resume))
         _check_sweep_file(directory, description, compare=resume or shared)
         if not resume:
-            set_up(directory, lambda: write_text(directory / SWEEP_FILE, json.dumps(description, indent=2)))
+            set_up(directory, lambda: write_sweep_file(directory, description))
         for run, environment in zip(runs, environments or [None] * len(runs), strict=True):
             locks.enter_context(
                 _prepare_sweep_run(directory / run.name, run, resume, environment, allow_environment_change)
@@ -380,12 +316,11 @@ def _lock_sweep_directory(directory: Path, resume: bool) -> DirectoryLock:
 def _check_sweep_file(directory: Path, description: dict[str, Any], compare: bool) -> None:
     """Read sweep.json if there is one (a damaged one is refused); with `compare`, refuse
     one that describes another sweep, naming what differs."""
-    sweep_file = directory / SWEEP_FILE
-    saved = read_json_object(sweep_file, "sweep") if sweep_file.is_file() else None
+    saved = read_sweep_file(directory)
     if compare and saved is not None and saved != description:
         raise RunError(
             f"{directory} was started with different settings, schedules or seeds; resume it with the same "
-            "command line: " + Message.joined("; ", _sweep_differences(saved, description, directory))
+            "command line: " + Message.joined("; ", sweep_differences(saved, description, directory))
         )
 
 
@@ -404,23 +339,16 @@ def _prepare_sweep_run(
     )
 
 
-_CHECKPOINT_NAME = re.compile(r"sweep-checkpoint(?:-(\d+)-of-(\d+))?\.npz")
-
-
 def _check_process_count(directory: Path, checkpoint_name: str) -> None:
     """Refuse to resume a sweep with another number of processes than it was checkpointed
     by: this process's checkpoint would be missing, and its runs would silently start over."""
     if (directory / checkpoint_name).exists():
         return
-    ours = _CHECKPOINT_NAME.fullmatch(checkpoint_name)
-    parts = int(ours.group(2)) if ours and ours.group(2) else 1
-    others = sorted(
-        name
-        for name in (path.name for path in directory.iterdir())
-        if (match := _CHECKPOINT_NAME.fullmatch(name)) and int(match.group(2) or 1) != parts
-    )
+    parts = checkpoint_processes(checkpoint_name) or 1
+    found = {path.name: checkpoint_processes(path.name) for path in directory.iterdir()}
+    others = sorted(name for name, count in found.items() if count is not None and count != parts)
     if others:
-        counts = sorted({int(m.group(2) or 1) for m in map(_CHECKPOINT_NAME.fullmatch, others) if m})
+        counts = sorted({found[name] for name in others})
         started = " or ".join(_processes(count) for count in counts)
         raise RunError(
             f"{directory} was checkpointed by {started} ({', '.join(others[:3])}{', ...' if len(others) > 3 else ''}), "
@@ -431,61 +359,3 @@ def _check_process_count(directory: Path, checkpoint_name: str) -> None:
 
 def _processes(count: int) -> str:
     return "one process" if count == 1 else f"{count} processes (--num-processes {count})"
-
-
-def _sweep_differences(saved: dict[str, Any], description: dict[str, Any], directory: Path) -> list[Message | str]:
-    """What differs between a saved sweep.json and this sweep, one line per setting (the
-    schedules and seeds too)."""
-    saved_config = saved.get("config")
-    lines: list[Message | str] = []
-    lines += setting_differences(saved_config if isinstance(saved_config, dict) else {}, description["config"], "sweep")
-    saved_runs = (
-        [r for r in saved.get("runs", []) if isinstance(r, dict)] if isinstance(saved.get("runs"), list) else []
-    )
-    task = str(saved.get("task", description["task"]))
-    old_stems, new_stems = _stems(saved_runs, task), _stems(description["runs"], description["task"])
-    if old_stems != new_stems:
-        lines.append(
-            Setting("schedules") + f": the sweep was started with {', '.join(old_stems)}, not {', '.join(new_stems)}"
-        )
-    old_seeds, new_seeds = _seeds(saved_runs), _seeds(description["runs"])
-    if old_seeds != new_seeds:
-        lines.append(
-            Setting("seeds")
-            + f": the sweep was started with seeds {_seed_list(old_seeds)}, not {_seed_list(new_seeds)}"
-        )
-    if not lines:
-        sources = {r.get("name"): r.get("source") for r in saved_runs}
-        for run in description["runs"]:
-            if run["name"] in sources and sources[run["name"]] != run["source"]:
-                stem = _stems([run], description["task"])[0]
-                lines.append(
-                    Setting("schedule")
-                    + f" {stem}: its text is not the one the sweep was started with "
-                    + f"(kept in {directory / run['name'] / 'schedule.sched'})"
-                )
-                break
-    return lines or [f"{directory / SWEEP_FILE} does not describe this sweep"]
-
-
-def _stems(runs: list[dict[str, Any]], task: str) -> list[str]:
-    stems: list[str] = []
-    for run in runs:
-        match = re.fullmatch(rf"{re.escape(task)}-(.*)-seed-?\d+", str(run.get("name", "")))
-        stem = match.group(1) if match else str(run.get("schedule"))
-        if stem not in stems:
-            stems.append(stem)
-    return stems
-
-
-def _seeds(runs: list[dict[str, Any]]) -> list[Any]:
-    return sorted({run.get("seed") for run in runs}, key=str)
-
-
-def _seed_list(seeds: list[Any]) -> str:
-    if seeds and all(isinstance(s, int) for s in seeds):
-        seeds = sorted(seeds)
-        if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[-1] + 1)):
-            return f"{seeds[0]}..{seeds[-1]}"
-    shown = ", ".join(str(s) for s in seeds[:10])
-    return shown + (", ..." if len(seeds) > 10 else "")

@@ -34,7 +34,7 @@ from qdax.utils.metrics import default_qd_metrics
 
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.qdax.reevaluation import ReevaluationCounts, kept_in_place, reevaluation_chunks
-from smol_dsl.runner.layout import default_runs_per_step, mesh_shape
+from smol_dsl.runner.layout import mesh_shape
 from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites
 from smol_dsl.tasks import make_task
 
@@ -56,7 +56,9 @@ class Engine:
     and the shares are gathered, so a sweep with fewer runs than devices still uses them
     all. Every array argument and result has the runs axis first; R must be a multiple of
     the runs axis (`padded_runs`). A run's body is a (channels,) array of the factors of
-    `channels`, in that order (`Task.with_channels`).
+    `channels`, in that order (`Task.with_channels`). `runs_per_step` is how many of a
+    device's runs are scored at once (None: all of them, vmapped), as `fit_sweep` resolves
+    it for the devices.
     """
 
     def __init__(
@@ -67,15 +69,17 @@ class Engine:
         iso_sigma: float,
         line_sigma: float,
         devices: list[jax.Device] | None = None,
-        runs_per_step: int | None = -1,
+        runs_per_step: int | None = None,
         num_runs: int | None = None,
         channels: tuple[Channel, ...] = (GEAR,),
     ) -> None:
+        if runs_per_step is not None and (isinstance(runs_per_step, bool) or runs_per_step < 1):
+            raise ValueError(f"runs_per_step {runs_per_step!r}: a number of runs, at least 1, or None for all")
         self.task = task = task.with_channels(channels)
         self.channels = task.channels
         self.batch_size = batch_size
         devices = list(devices) if devices is not None else jax.local_devices()
-        self.runs_per_step = default_runs_per_step(devices) if runs_per_step == -1 else runs_per_step
+        self.runs_per_step = runs_per_step
         along_runs, self.population_devices = mesh_shape(
             len(devices), len(devices) if num_runs is None else num_runs, batch_size
         )
@@ -85,7 +89,7 @@ class Engine:
         self.sharding = NamedSharding(self.mesh, PartitionSpec(RUNS))
         self.options = task.compiler_options(self.devices[0].platform)  # faster on CPUs, the same results
         map_elites = make_map_elites(batch_size, task.qd_offset, iso_sigma, line_sigma)
-        self.run_step = step = RunStep(map_elites, task.init_policies, self._score, batch_size)
+        step = RunStep(map_elites, task.init_policies, self._score, batch_size)
         # a generation is ask, score, tell and a re-evaluation pick, score, insert: the same
         # scoring program for both (the rollout is nearly all of the compilation)
         self._ask = self._sharded(self._reseeding_ask(step), ())

@@ -34,9 +34,8 @@ class ProgressBar:
         self._first_evaluations: int | None = None
         self._reevaluation = ""  # the current phase's re-evaluation, in a few words
 
-    def update(self, rows: dict[str, Any] | list[dict[str, Any]], total: int) -> None:
-        """Show the latest row of a run, or the latest rows of every run of a sweep."""
-        rows = [rows] if isinstance(rows, dict) else rows
+    def update(self, rows: list[dict[str, Any]], total: int) -> None:
+        """Show the latest row of every run (one, or every run of a sweep)."""
         evaluations = sum(row["evaluations"] + row["reevaluations"] for row in rows)
         if self._first_evaluations is None:
             self._first_evaluations = evaluations
@@ -74,8 +73,8 @@ class ReevaluationWarnings:
     def __init__(self, config: RunConfig) -> None:
         self._phases = config.num_phases
 
-    def update(self, rows: dict[str, Any] | list[dict[str, Any]], total: int) -> None:
-        rows = [rows] if isinstance(rows, dict) else rows
+    def update(self, rows: list[dict[str, Any]], total: int) -> None:
+        """Warn of a re-evaluation that left under half the cells filled."""
         warning = reevaluation_warning(rows, self._phases) if rows[0]["event"] == REEVALUATION else None
         if warning is not None:
             print(warning, file=sys.stderr, flush=True)

@@ -1,10 +1,12 @@
-"""A sweep: every (schedule, seed) pair of one task, trained together on the engine.
+"""The runner's one entry: a training of one run (`run_experiment`) or of every (schedule,
+seed) pair of a task (`run_sweep`), planned and checked once, then trained together.
 
-`run_sweep(task, schedules, seeds, config)` trains all runs generation by generation
-(runs sharded across the local devices) and writes one run directory per pair, in
-`run_experiment`'s format, so each can be opened, plotted and reported like a single run.
-The sweep's own checkpoint holds every run at the same boundary, written atomically, so an
-interrupted sweep resumes exactly.
+`plan_training` refuses what `smol-dsl run` and `sweep` refuse (settings, schedules, parts,
+memory) before anything is created or compiled and sizes the runs for the devices once;
+`train_planned` sets up and locks the directories and trains the runs on the engine
+(`smol_dsl.runner.training`). A sweep writes one run directory per pair, in a run's format,
+so each can be opened, plotted and reported like a single run; its own checkpoint holds
+every run at the same boundary, so an interrupted sweep resumes exactly.
 """
 
 from __future__ import annotations
@@ -13,22 +15,24 @@ import contextlib
 import dataclasses
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import jax
+
+from smol_dsl.rundir import CHECKPOINT_FILE, describe_environment, scoring_layout
+from smol_dsl.rundir.layout import run_name, sweep_checkpoint_file
+from smol_dsl.runner.config import RunError
+from smol_dsl.runner.directories import out_path, prepare_run_directory, prepare_sweep_directory, schedule_stem
+from smol_dsl.runner.engine import shared_engine
+from smol_dsl.runner.footprint import Footprint, fit_sweep
+from smol_dsl.runner.training import PlannedRun, Progress, RunResult, check_runs, run_channels, train
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.tasks.base import Task
-
-from smol_dsl.rundir import SWEEP_CHECKPOINT_FILE, describe_environment, scoring_layout
-from smol_dsl.runner.config import RunError
-from smol_dsl.runner.directories import out_path, prepare_sweep_directory, run_name
-from smol_dsl.runner.engine import shared_engine
-from smol_dsl.runner.footprint import fit_sweep
-from smol_dsl.runner.training import PlannedRun, Progress, RunResult, check_runs, run_channels, train
 
 
 def plan_sweep(schedules: Sequence[Schedule], seeds: Sequence[int], config: RunConfig) -> list[PlannedRun]:
@@ -38,7 +42,9 @@ def plan_sweep(schedules: Sequence[Schedule], seeds: Sequence[int], config: RunC
     if not seeds:
         raise RunError("a sweep needs at least one seed")
     runs = [
-        PlannedRun(schedule, dataclasses.replace(config, seed=seed), run_name(config.task, schedule, seed))
+        PlannedRun(
+            schedule, dataclasses.replace(config, seed=seed), run_name(config.task, schedule_stem(schedule), seed)
+        )
         for schedule in schedules
         for seed in seeds
     ]
@@ -63,6 +69,123 @@ def sweep_part(every: list[PlannedRun], part: tuple[int, int]) -> list[PlannedRu
     return runs
 
 
+@dataclass(frozen=True)
+class TrainingPlan:
+    """A run or a sweep, checked and sized for its devices: the runs this process trains
+    (`runs`, of the sweep's `every`), where (`directory`: the run's, or the sweep's), how
+    many runs a device advances at once and what that needs (`footprint`)."""
+
+    task: Task | str
+    config: RunConfig
+    every: list[PlannedRun]
+    runs: list[PlannedRun]
+    devices: tuple[jax.Device, ...]
+    part: tuple[int, int]
+    footprint: Footprint
+    runs_per_step: int | None
+    directory: Path | None
+    is_sweep: bool
+
+    @property
+    def checkpoint(self) -> Path | None:
+        """The checkpoint this process writes: the run directory's, or its part's of the sweep's."""
+        if self.directory is None:
+            return None
+        return self.directory / (sweep_checkpoint_file(self.part) if self.is_sweep else CHECKPOINT_FILE)
+
+
+def plan_training(
+    task: Task | str,
+    schedules: Sequence[Schedule],
+    seeds: Sequence[int],
+    config: RunConfig,
+    *,
+    out_dir: str | Path | None = None,
+    devices: Sequence[jax.Device] | None = None,
+    runs_per_step: int | None = -1,
+    part: tuple[int, int] = (0, 1),
+    is_sweep: bool = True,
+) -> TrainingPlan:
+    """Every (schedule, seed) pair of `task` (a run: one schedule, the config's seed, not a
+    sweep), checked as `smol-dsl run` and `sweep` check them (a ConfigError or RunError,
+    with the CLI's message) and sized for `devices` (default: all local ones), before
+    anything is created or compiled. `runs_per_step` and `part` as in `run_sweep`."""
+    directory = out_path(out_dir)
+    if is_sweep:
+        every = plan_sweep(schedules, seeds, config)
+        if directory is not None:
+            every = [dataclasses.replace(run, directory=directory / run.name) for run in every]
+        runs = sweep_part(every, part)
+    else:
+        (schedule,) = schedules
+        every = runs = [
+            PlannedRun(schedule, config, run_name(config.task, schedule_stem(schedule), config.seed), directory)
+        ]
+    devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
+    check_runs(task, list(schedules), config)
+    footprint = fit_sweep(config, len(schedules), seeds, devices, runs_per_step, part)  # before compiling
+    chosen = footprint.runs_per_step if runs_per_step == -1 else runs_per_step
+    return TrainingPlan(task, config, every, runs, devices, part, footprint, chosen, directory, is_sweep)
+
+
+def train_planned(
+    plan: TrainingPlan,
+    *,
+    resume: bool = False,
+    progress: Progress | None = None,
+    stop_after_generation: int | None = None,
+    allow_environment_change: bool = False,
+    started: float | None = None,
+) -> list[RunResult]:
+    """Set up (or check, to `resume`) and lock the plan's directories, then train its runs
+    together; one RunResult per run of this process."""
+    started = time.perf_counter() if started is None else started
+    runs, config = plan.runs, plan.config
+    channels = run_channels([run.schedule for run in runs])
+    names = [channel.name for channel in channels]
+    environments = [
+        describe_environment(plan.devices, scoring_layout(len(runs), r, plan.runs_per_step, names))
+        for r in range(len(runs))
+    ]
+    with contextlib.ExitStack() as held:
+        if plan.directory is not None:  # this process's run directories stay locked until it returns
+            held.enter_context(_prepare_directories(plan, resume, environments, allow_environment_change))
+        engine = shared_engine(plan.task, config, plan.devices, plan.runs_per_step, len(runs), channels)
+        return train(
+            engine,
+            engine.task,
+            runs,
+            config,
+            checkpoint=plan.checkpoint,
+            resume=resume,
+            progress=progress,
+            stop_after_generation=stop_after_generation,
+            started=started,
+        )
+
+
+def _prepare_directories(
+    plan: TrainingPlan, resume: bool, environments: list[dict[str, Any]], allow_environment_change: bool
+) -> contextlib.AbstractContextManager[Any]:
+    assert plan.directory is not None and plan.checkpoint is not None
+    if not plan.is_sweep:
+        (run,) = plan.runs
+        return prepare_run_directory(
+            plan.directory, run.schedule, run.config, resume, environments[0], allow_environment_change
+        )
+    return prepare_sweep_directory(
+        plan.directory,
+        plan.every,
+        plan.runs,
+        plan.config,
+        resume,
+        plan.part[1] > 1,
+        plan.checkpoint.name,
+        environments,
+        allow_environment_change,
+    )
+
+
 def run_sweep(
     task: Task | str,
     schedules: Sequence[Schedule],
@@ -83,58 +206,25 @@ def run_sweep(
     `config` is shared (its own seed is ignored). With `out_dir`, writes `sweep.json`, the
     sweep checkpoint and one run directory per pair; with `resume`, continues from the
     last checkpoint. `devices` (default: all local devices) share the runs;
-    `runs_per_step` is how many runs a device advances at once (-1: one on CPU; on
-    accelerators all, or as many as fit in memory; None: all). A sweep whose archives
-    cannot fit the devices' memory is refused with a RunError before anything compiles.
-    `progress(rows, total)` gets the latest row of every run.
+    `runs_per_step` is how many runs a device advances at once (-1: the devices choose,
+    one at a time on a CPU, on accelerators all or as many as fit in memory; None: all).
+    Settings `smol-dsl sweep` refuses are a ConfigError or RunError with its message, and
+    a sweep whose archives cannot fit the devices' memory is a RunError, before anything
+    compiles. `progress(rows, total)` gets the latest row of every run.
     `part=(k, n)` runs only every n-th pair from the k-th (one process of n sharing a
     sweep, each on its own devices; see docs/scaling.md) and returns those. Every run
     records what it runs under (environment.json); resuming under another environment is
     refused unless `allow_environment_change`.
     """
     started = time.perf_counter()
-    directory = out_path(out_dir)
-    every = plan_sweep(schedules, seeds, config)
-    if directory is not None:
-        every = [dataclasses.replace(run, directory=directory / run.name) for run in every]
-    runs = sweep_part(every, part)
-    devices = tuple(devices) if devices is not None else tuple(jax.local_devices())
-    check_runs(task, list(schedules), config)
-    footprint = fit_sweep(config, len(schedules), seeds, devices, runs_per_step, part)  # before compiling
-    if runs_per_step == -1:
-        runs_per_step = footprint.runs_per_step
-    index, parts = part
-    checkpoint_name = SWEEP_CHECKPOINT_FILE if parts == 1 else f"sweep-checkpoint-{index}-of-{parts}.npz"
-    channels = run_channels([run.schedule for run in runs])
-    names = [channel.name for channel in channels]
-    environments = [
-        describe_environment(devices, scoring_layout(len(runs), r, runs_per_step, names)) for r in range(len(runs))
-    ]
-    with contextlib.ExitStack() as held:
-        if directory is not None:  # this process's run directories stay locked until it returns
-            held.enter_context(
-                prepare_sweep_directory(
-                    directory,
-                    every,
-                    runs,
-                    config,
-                    resume,
-                    parts > 1,
-                    checkpoint_name,
-                    environments,
-                    allow_environment_change,
-                )
-            )
-        engine = shared_engine(task, config, devices, runs_per_step, len(runs), channels)
-        checkpoint = directory / checkpoint_name if directory is not None else None
-        return train(
-            engine,
-            engine.task,
-            runs,
-            config,
-            checkpoint=checkpoint,
-            resume=resume,
-            progress=progress,
-            stop_after_generation=stop_after_generation,
-            started=started,
-        )
+    plan = plan_training(
+        task, schedules, seeds, config, out_dir=out_dir, devices=devices, runs_per_step=runs_per_step, part=part
+    )
+    return train_planned(
+        plan,
+        resume=resume,
+        progress=progress,
+        stop_after_generation=stop_after_generation,
+        allow_environment_change=allow_environment_change,
+        started=started,
+    )

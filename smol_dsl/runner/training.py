@@ -29,15 +29,15 @@ import numpy as np
 from smol_dsl import rundir
 from smol_dsl.errors import Setting
 from smol_dsl.language.channels import GEAR, Channel
+from smol_dsl.qdax.phases import phase_of_generation
 from smol_dsl.rundir import CHECKPOINT_FILE, MetricsLog
+from smol_dsl.rundir.checkpoint import RunState, checkpoint_contents
 from smol_dsl.runner.checkpoint import (
     CheckpointWriter,
-    RunState,
     archive_arrays,
     checkpoint_arrays,
     load_checkpoint,
     save_checkpoint,
-    stacked_checkpoint,
     storage_error,
 )
 from smol_dsl.runner.config import ConfigError, RunError, check_config
@@ -276,7 +276,7 @@ class HostLoop:
             for generation in range(state.generation + 1, self.config.generations + 1):
                 if stop_after_generation is not None and generation > stop_after_generation:
                     break
-                phase = self.config.phase_of_generation(generation)
+                phase = phase_of_generation(generation, self.config.generations, self.config.num_phases)
                 if phase != state.phase:
                     self.check_phase(state)
                     # the last checkpoint's host copy is let go before the archives are held
@@ -312,7 +312,7 @@ class HostLoop:
             if run.directory is not None and finished:
                 arrays = archive_arrays(state.repertoires, slice(r, r + 1))  # one host copy of one run at a time
                 if newly_finished:
-                    single = stacked_checkpoint(arrays, host_keys[r : r + 1], [run_state], owner([run], run.config))
+                    single = checkpoint_contents(arrays, host_keys[r : r + 1], [run_state], owner([run], run.config))
                     rundir.write_npz(run.directory / CHECKPOINT_FILE, single)
                 rundir.write_archive(
                     run.directory / rundir.ARCHIVE_FILE, {name: values[0] for name, values in arrays.items()}
