@@ -166,7 +166,7 @@ def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, mo
 
     swept, reported, drawn = [], [], []
 
-    def start(self, plan, footprint, progress):
+    def start(self, plan, training, progress):
         swept.append(plan.out)
         final = {"evaluations": plan.config.evaluations, "reevaluations": 0}
         return [SimpleNamespace(seconds=1.0, final=final, config=plan.config)]

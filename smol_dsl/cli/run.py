@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
     from smol_dsl.rundir import RunConfig
     from smol_dsl.runner import RunResult
+    from smol_dsl.runner.sweep import TrainingPlan
 
 LARGE_BYTES = 1e9  # a run or sweep this big on a device gets its footprint printed, whatever the preset
 
@@ -160,10 +161,11 @@ class TrainingCommand(ABC):
     """`run` or `sweep`: `train` takes the steps both share; the methods below are what differs."""
 
     command: str
+    is_sweep: bool  # a sweep directory of run directories, or one run directory
 
     def train(self, args: argparse.Namespace) -> int:
         from smol_dsl.runner.directories import busy, check_out_dir, non_empty
-        from smol_dsl.runner.sweep import plan_training, train_planned
+        from smol_dsl.runner.sweep import plan_training
 
         use_cpu_cores_as_devices()
         common.check_task(args.task)
@@ -189,7 +191,7 @@ class TrainingCommand(ABC):
             devices=plan.devices,
             runs_per_step=plan.runs_per_step,
             part=part,
-            is_sweep=self.command == "sweep",
+            is_sweep=self.is_sweep,
         )
         check_out_dir(out)  # before anything compiles: a file, a device or a path under a file
         if not args.resume and part == (0, 1) and non_empty(out):
@@ -213,13 +215,7 @@ class TrainingCommand(ABC):
         note = self.note(args, config)
         if note:
             print(f"smol-dsl {self.command}: {note}", file=sys.stderr)
-        results = _with_progress(
-            args,
-            config,
-            lambda progress: train_planned(
-                training, resume=args.resume, progress=progress, allow_environment_change=args.allow_environment_change
-            ),
-        )
+        results = _with_progress(args, config, lambda progress: self.start(plan, training, progress))
         _draw_figures(results)
         print(self.summary(plan, results))
         return EXIT_OK
@@ -244,6 +240,16 @@ class TrainingCommand(ABC):
         """A note printed before training starts, if any."""
         return None
 
+    def start(self, plan: Plan, training: TrainingPlan, progress: Callable[..., None]) -> list[RunResult]:
+        """Train (or resume) the planned runs, reporting every run's rows to `progress`; the
+        results of this process's runs."""
+        from smol_dsl.runner.sweep import train_planned
+
+        args = plan.args
+        return train_planned(
+            training, resume=args.resume, progress=progress, allow_environment_change=args.allow_environment_change
+        )
+
     @abstractmethod
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
         """What is printed when training has ended."""
@@ -253,6 +259,7 @@ class Run(TrainingCommand):
     """`smol-dsl run`: one schedule, one seed (--seed, or the preset's), in one run directory."""
 
     command = "run"
+    is_sweep = False
 
     def check_seeds(self, args: argparse.Namespace) -> None:
         from smol_dsl.seeds import check_seed
@@ -297,6 +304,7 @@ class Sweep(TrainingCommand):
     sweep directory (or this process's share of them)."""
 
     command = "sweep"
+    is_sweep = True
 
     def check_seeds(self, args: argparse.Namespace) -> None:
         """--first-seed and every seed up to --first-seed + --seeds - 1 must give distinct runs."""
