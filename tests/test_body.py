@@ -260,8 +260,9 @@ def test_channels_the_body_cannot_take_are_refused(walker):
 def test_mass_changes_a_body_brax_simulates_with_unit_masses():
     """Hopper's spring pipeline gives every link mass 1 and unit inertia whatever sys says;
     the mass channel scales what is simulated, so a heavier hopper moves differently, and at
-    1 the hopper is the plain one."""
-    hopper = make_task("hopper", episode_length=30, hidden_layer_sizes=(8,))
+    1 the hopper is the plain one. (The plain hopper is test_tasks' at EPISODE, BATCH and the
+    paper's policy sizes: one program, compiled once in the session and loaded by the other.)"""
+    hopper = make_task("hopper", episode_length=EPISODE)
     assert float(hopper.env.sys.spring_mass_scale) == 1.0 == float(hopper.env.sys.spring_inertia_scale)
     body = hopper.with_channels(["gear", "mass[whole_leg]", "friction", "gravity"])
     params = hopper.init_policies(jax.random.key(11), BATCH)

@@ -24,7 +24,7 @@ from smol_dsl.tasks import make_task
 from smol_dsl.tasks.base import deterministic_init_state
 
 EPISODE = CONFIG.episode_length
-BATCH = 8
+BATCH = 16  # the policies' batch, and _one_generation's: one compiled scoring for both
 
 
 @pytest.fixture(scope="module")
@@ -135,7 +135,7 @@ def test_bad_bodies_genotypes_and_schedules_are_value_errors(task, policies, sco
 
 
 def _one_generation(task, score, body):
-    genotypes = task.init_policies(jax.random.key(5), 16)
+    genotypes = task.init_policies(jax.random.key(5), BATCH)  # `score`'s program of `policies`
     fitnesses, descriptors, _ = score(genotypes, jax.random.key(0), body)
     centroids = smol.run_start(task, 0, batch_size=1, num_centroids=32, num_init_cvt_samples=2000).centroids
     return MapElitesRepertoire.init(genotypes, fitnesses, descriptors, centroids)
@@ -149,7 +149,7 @@ def test_reevaluation_in_the_same_body_keeps_every_elite_and_extinction_one_none
     assert filled.sum() > 1
     same = smol.reevaluate(repertoire, score, body, jax.random.key(1), batch_size=5)  # chunks of 5, padded
     # the same elites in the same cells; the fitnesses to float rounding (XLA compiles a batch of
-    # 5 and one of 16 differently)
+    # 5 and one of BATCH differently)
     np.testing.assert_array_equal(np.asarray(same.fitnesses) > -np.inf, filled)
     np.testing.assert_allclose(np.asarray(same.fitnesses)[filled], np.asarray(repertoire.fitnesses)[filled], rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(same.descriptors), np.asarray(repertoire.descriptors))

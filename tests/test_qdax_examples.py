@@ -60,33 +60,48 @@ def test_qdax_map_elites_under_smol_is_smol_dsl_run():
     phases_recorded(history, bodies)
 
 
-def initial_in_final_body(task, schedule_name, seed, flat=False):
+def initial_in_final_body(task, schedule_name, seed, trained, flat=False, transitions=True):
     """QDax's metrics of the run's initial population, scored in the schedule's final body:
     what the trained repertoire (in that body) must beat. At this size (32 cells, 20-step
     episodes, 12 generations) re-evaluations in new bodies gather the few elites into one or
-    two cells, so the trained repertoire is held to a better best policy, not to coverage."""
+    two cells, so the trained repertoire is held to a better best policy, not to coverage.
+
+    The initial policies are scored by the example's own compiled re-evaluation program (its
+    scoring function, `transitions` as the example asks, and its batch size; loaded, not
+    compiled again): each placed in a cell of its own of the `trained` repertoire's
+    structure, then `smol.reevaluate` with no extinction scores them all in the final body
+    and inserts them into a fresh repertoire on the run's centroids, collisions keeping the
+    best: what `MapElitesRepertoire.init` of the policies and their final-body scores is."""
     import jax
+    import jax.numpy as jnp
     from jax.flatten_util import ravel_pytree
-    from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
     from qdax.utils.metrics import default_qd_metrics
 
     from smol_dsl import qdax as smol
 
     schedule = smol_dsl.load(schedule_name)
+    batch = SIZES["batch_size"]
     start = smol.run_start(
         task,
         seed,
-        batch_size=SIZES["batch_size"],
+        batch_size=batch,
         num_centroids=SIZES["num_centroids"],
         num_init_cvt_samples=SIZES["num_init_cvt_samples"],
     )
+    np.testing.assert_array_equal(start.centroids, trained.centroids)  # the run's centroids
     final = smol.phase_bodies(schedule, SIZES["num_phases"], smol.schedule_key(seed))[-1]
     genotypes = jax.vmap(lambda p: ravel_pytree(p)[0])(start.genotypes) if flat else start.genotypes
-    fitnesses, descriptors, _ = smol.scoring_function(task, schedule, seed=seed, transitions=False)(
-        genotypes, start.init_key, final
+    cells = len(trained.fitnesses)
+    assert cells >= batch  # a cell of its own for every initial policy
+    placed = trained.replace(
+        genotypes=jax.tree.map(lambda cell, policy: cell.at[:batch].set(policy), trained.genotypes, genotypes),
+        fitnesses=jnp.where(
+            (jnp.arange(cells) < batch).reshape((cells,) + (1,) * (trained.fitnesses.ndim - 1)), 0.0, -jnp.inf
+        ).astype(trained.fitnesses.dtype),
     )
-    repertoire = MapElitesRepertoire.init(genotypes, fitnesses, descriptors, start.centroids)
-    return {name: float(value) for name, value in default_qd_metrics(repertoire, task.qd_offset).items()}
+    score = smol.scoring_function(task, schedule, seed=seed, transitions=transitions)
+    scored = smol.reevaluate(placed, score, final, jax.random.key(0), batch_size=batch)
+    return {name: float(value) for name, value in default_qd_metrics(scored, task.qd_offset).items()}
 
 
 def test_qdax_pga_me_under_human_improves_and_records_its_body_per_phase():
@@ -100,7 +115,7 @@ def test_qdax_pga_me_under_human_improves_and_records_its_body_per_phase():
     for row in history:
         assert row["body"] == {"gear": pytest.approx(float(bodies[row["phase"], 0]))}
     assert history[-1]["body"] == {"gear": 1.0}
-    initial = initial_in_final_body(small_task(), "human", 1)
+    initial = initial_in_final_body(small_task(), "human", 1, repertoire)
     print({"initial population in the final body": initial, "final": history[-1]})
     assert history[-1]["max_fitness"] > initial["max_fitness"]
     buffer = emitter_state.emitter_states[0].replay_buffer  # the policy-gradient emitter's
@@ -118,7 +133,9 @@ def test_qdax_cma_me_under_three_channels_improves_and_ranks_against_the_new_bod
     phases_recorded(history, bodies)
     assert history[-1]["body"] == {"gear": 1.0, "mass": 1.0, "friction": 1.0}
     task = make_task("walker2d", episode_length=SIZES["episode_length"], hidden_layer_sizes=(4,))
-    initial = initial_in_final_body(task, EXAMPLES / "three-channels.sched", 0, flat=True)
+    initial = initial_in_final_body(
+        task, EXAMPLES / "three-channels.sched", 0, repertoire, flat=True, transitions=False
+    )
     print({"initial population in the final body": initial, "final": history[-1]})
     assert history[-1]["max_fitness"] > initial["max_fitness"]
     assert emitter_state.emitter_states.previous_fitnesses.shape[1:] == repertoire.fitnesses.shape
