@@ -253,23 +253,54 @@ class Curve:
 
     def draws(self, key: jax.Array | None = None) -> list[jax.Array | None]:
         """The uniform [0, 1) draws of each random segment under `key` (None elsewhere)."""
+
+        draws: list[jax.Array | None] = [None] * len(self.segments)
+        for indices, drawn in zip(self._draw_groups().values(), self._drawn_groups(key)):
+            for row, j in enumerate(indices):
+                draws[j] = drawn[row]
+        return draws
+
+    def _draw_groups(self) -> dict[int, list[int]]:
+        """The random segments' indices by their number of draws, in order of first appearance."""
+        by_count: dict[int, list[int]] = {}
+        for segment in self.segments:
+            if segment.draws is not None:
+                by_count.setdefault(segment.draws.count, []).append(segment.index)
+        return by_count
+
+    def _drawn_groups(self, key: jax.Array | None) -> list[jax.Array]:
+        """For each group of `_draw_groups`, its segments' draws, one row per segment."""
         import jax
 
         key = self.channel_key(key)
         # Segment j draws uniform(fold_in(key, j), (count,)). Segments with the same count are
         # drawn together under vmap (the same numbers, one operation per distinct count), so
         # that a schedule of many random segments compiles quickly.
-        by_count: dict[int, list[int]] = {}
-        for segment in self.segments:
-            if segment.draws is not None:
-                by_count.setdefault(segment.draws.count, []).append(segment.index)
-        draws: list[jax.Array | None] = [None] * len(self.segments)
-        for count, indices in by_count.items():
+        groups = []
+        for count, indices in self._draw_groups().items():
             keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jax.numpy.asarray(indices))
-            drawn = jax.vmap(lambda k, count=count: jax.random.uniform(k, (count,)))(keys)
-            for row, j in enumerate(indices):
-                draws[j] = drawn[row]
-        return draws
+            groups.append(jax.vmap(lambda k, count=count: jax.random.uniform(k, (count,)))(keys))
+        return groups
+
+    def _flat_draws(self, key: Any) -> jax.Array:
+        """Every random segment's draws, one after the other in segment order: `draws`
+        concatenated, bit for bit, gathered from the groups' rows in one operation (not one
+        slice per segment, which makes a program of many random segments slow to compile)."""
+        import jax.numpy as jnp
+
+        flat = jnp.concatenate([drawn.reshape(-1) for drawn in self._drawn_groups(key)])
+        order = self._flat_draw_order()
+        return flat if order is None else flat[order]
+
+    def _flat_draw_order(self) -> np.ndarray | None:
+        """Where each of `_flat_draws` lies in the groups' flattened rows (None: in place)."""
+        position, where = 0, {}
+        for count, indices in self._draw_groups().items():
+            for j in indices:
+                where[j] = np.arange(position, position + count)
+                position += count
+        order = np.concatenate([where[j] for j in sorted(where)]).astype(np.int32)
+        return None if np.array_equal(order, np.arange(order.size)) else order
 
     # ------------------------------------------------------------------ internals
     def _bin_of(self, t: jax.Array, index: jax.Array) -> jax.Array:
@@ -314,7 +345,7 @@ class Curve:
         start = table(tables.starts)
         fraction = jnp.clip((t - start) * table(tables.inverse_lengths), 0.0, 1.0)
         if tables.is_random.any():
-            draws = jnp.concatenate([d for d in self.draws(key) if d is not None]).astype(t.dtype)
+            draws = self._flat_draws(key).astype(t.dtype)
             drawn = draws[jnp.asarray(tables.first_draws)[index] + bins]
             fraction = jnp.where(jnp.asarray(tables.is_random)[index], drawn, fraction)
         value = table(tables.offsets) + table(tables.scales) * fraction
