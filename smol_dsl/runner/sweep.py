@@ -153,7 +153,6 @@ def train_planned(
         engine = shared_engine(plan.task, config, plan.devices, plan.runs_per_step, len(runs), channels)
         return train(
             engine,
-            engine.task,
             runs,
             config,
             checkpoint=plan.checkpoint,

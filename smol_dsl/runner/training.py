@@ -180,7 +180,7 @@ class HostLoop:
 
     def load(self) -> tuple[Any, Any, list[RunState]] | None:
         """The checkpoint's archives, keys and states, or None if there is none yet; a
-        RunError for a damaged one or one of other runs."""
+        RunDirectoryError for a damaged one or one of other runs."""
         if self.checkpoint is None:
             return None
         task = self.course.engine.task
@@ -345,7 +345,6 @@ def run_of(stacked: jax.Array, run: int) -> jax.Array:
 
 def train(
     engine: Engine,
-    task: Task,
     runs: list[PlannedRun],
     config: RunConfig,
     *,
