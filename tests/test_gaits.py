@@ -16,7 +16,7 @@ from small_runs import cli
 from smol_dsl.results import gait_video, gaits
 from smol_dsl.rundir import load_archive
 
-STEPS = 30
+STEPS = 30  # past the episode (20 steps); every --steps here is this one, one drawing program
 REPORTED = re.compile(r"cell (\d+), (.+?) body \((.+?)\): fitness (\S+) \(archive (\S+)\), descriptor \((.+?)\)")
 
 
@@ -180,7 +180,7 @@ def test_two_bodies_are_two_rollouts_in_a_frame_of_any_height(small_run, tmp_pat
             "--size",
             "320x481",
             "--steps",
-            "10",
+            str(STEPS),
             "-o",
             str(out),
         ],
@@ -196,7 +196,7 @@ def test_two_bodies_are_two_rollouts_in_a_frame_of_any_height(small_run, tmp_pat
 def test_a_point_outside_the_descriptor_space_is_noted(small_run, tmp_path, capsys):
     from smol_dsl.cli import main
 
-    assert main(["render", str(small_run), "--at", "5,5", "--steps", "5", "-o", str(tmp_path / "far.gif")]) == 0
+    assert main(["render", str(small_run), "--at", "5,5", "--steps", str(STEPS), "-o", str(tmp_path / "far.gif")]) == 0
     printed = capsys.readouterr().out
     assert "note: --at 5,5 lies outside walker2d's descriptor space ([0, 1] x [0, 1])" in printed, printed
     assert "the nearest elite, in cell" in printed

@@ -90,9 +90,9 @@ def test_flat_genotypes_score_as_the_policies_they_flatten(policies, score):
 
 
 @pytest.mark.slow
-def test_the_body_is_traced_one_compilation_for_every_phase(task, policies, qdax_start):
-    score = smol.scoring_function(task, "human", start=qdax_start, transitions=False)
-    bodies = list(smol.phase_bodies("human", 10))
+def test_the_body_is_traced_one_compilation_for_every_phase(policies, score):
+    """smol.sched's bodies, one per phase, all scored by the program of the first call."""
+    bodies = list(smol.phase_bodies("smol", 10))
     first = score(policies, jax.random.key(0), bodies[0])[0]
     compiles = []
     jax.monitoring.register_event_duration_secs_listener(

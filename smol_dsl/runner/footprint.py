@@ -33,7 +33,7 @@ device); the allocator keeps what the loop's buffers freed.
 
 `runtime_bytes` was fitted to the peak resident memory (VmHWM, read from outside) of
 `smol-dsl sweep` processes of 1, 2, 4 and 10 ant_omni runs of 256 cells on 2 CPU devices
-(the tests hold every such estimate within 15%): on jax 0.12 peaks of 1.28, 1.36, 2.07 and
+(a test holds the estimates of 1 and 10 runs within 15%): on jax 0.12 peaks of 1.28, 1.36, 2.07 and
 3.10 GB against estimates of 1.3, 1.4, 2.0 and 3.2 GB (0.5 GB of runtime); on jax 0.10
 peaks of 1.59, 2.24 and 3.29 GB for 1, 4 and 10 runs against 1.6, 2.3 and 3.5 GB (0.8 GB).
 """
