@@ -184,10 +184,10 @@ def test_extinction_of_every_elite_reseeds(task):
 
 
 def one_run_engine(task, batch_size=16):
-    """An engine of its own for one run on one device, and that run's inputs (alpha 1, seed 0)."""
-    engine = Engine(
-        task, batch_size=batch_size, iso_sigma=0.005, line_sigma=0.05, devices=jax.devices()[:1], num_runs=1
-    )
+    """An engine of its own for one run laid out as the small runs' (its population split
+    between the devices: the programs that do not score are theirs), and that run's inputs
+    (alpha 1, seed 0)."""
+    engine = Engine(task, batch_size=batch_size, iso_sigma=0.005, line_sigma=0.05, num_runs=1)
     return engine, *run_inputs(engine)
 
 
@@ -278,13 +278,16 @@ def test_non_finite_results_never_enter_the_archive(task, monkeypatch):
     poisoned_task = dataclasses.replace(task)
     object.__setattr__(poisoned_task, "score", poisoned)
     engine, start, alpha = one_run_engine(poisoned_task)
+    # each device scores its share of the batch: indices 0, 1, 3, 4, ... of each share are poisoned
+    share = engine.batch_size // engine.population_devices
+    poisoned_count = engine.population_devices * sum(i % 3 != 2 for i in range(share))
     centroids = cvt_centroids(32, task.descriptor_low, task.descriptor_high, 2000, jax.random.key(0))
     archive, _, dropped, reseeded = engine.step(
         engine.empty_archives(centroids[None]), alpha, start, engine.put(jax.random.key(1)[None])
     )
-    assert bool(reseeded[0]) and int(dropped[0]) == 11  # indices 0, 1, 3, 4, ... of 16: two of every three
+    assert bool(reseeded[0]) and int(dropped[0]) == poisoned_count
     archive, _, dropped, reseeded = engine.step(archive, alpha * 1.2, start, engine.put(jax.random.key(2)[None]))
-    assert not bool(reseeded[0]) and int(dropped[0]) == 11
+    assert not bool(reseeded[0]) and int(dropped[0]) == poisoned_count
     rate = engine.put(jnp.zeros((1,), jnp.float32))
     before = int(np.sum(np.asarray(archive.fitnesses) > -np.inf))
     archive, counts = engine.reevaluate(archive, alpha * 0.8, start, rate, engine.put(jax.random.key(3)[None]))
