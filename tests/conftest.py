@@ -90,9 +90,19 @@ checkout (pip builds in place: two builds at once would share its build/ folder)
 as with `--dist loadfile`."""
 
 
-LONGEST_UNITS = ("small-runs", "brax-tasks", "test_task_runs", "test_properties", "test_map_elites")
-"""The units that take minutes on 2 cores (in that order, as measured): handed out first, so
-that the session does not end waiting on one of them while the other workers are idle."""
+LONGEST_UNITS = (
+    "small-runs",
+    "brax-tasks",
+    "test_footprint",
+    "test_properties",
+    "test_qdax_examples",
+    "test_accelerator",
+    "test_qdax",
+    "test_task_runs",
+)
+"""The units that take minutes on 2 cores (in that order, as measured with --durations):
+handed out first, so that the session does not end waiting on one of them while the other
+workers are idle; the many short files fill in at the end."""
 
 
 @pytest.hookimpl(optionalhook=True)

@@ -116,7 +116,8 @@ def test_the_score_is_the_runner_s_rollout_in_the_body(task, policies, qdax_star
     assert extra == {}
 
 
-def test_bad_bodies_genotypes_and_schedules_are_value_errors(task, policies, score):
+def test_bad_bodies_genotypes_and_schedules_are_value_errors(task, policies):
+    score = smol.scoring_function(task, "smol")  # refusals come before its episode start is made
     with pytest.raises(ValueError, match=r"a \(1,\) array, one factor per channel \(gear\)"):
         score(policies, jax.random.key(0), jnp.ones(2))
     other = make_task("walker2d", episode_length=EPISODE, hidden_layer_sizes=(8,)).init_policies(jax.random.key(0), 4)

@@ -526,7 +526,7 @@ def test_a_full_disk_leaves_the_earlier_report_whole(pristine, tmp_path, capsys,
         path.write_bytes(data)
 
     monkeypatch.setattr(rundir_files, "_write_bytes", full_disk)
-    refused(["report", str(pristine), "-o", str(out), "--force"], capsys, "No space left on device", out)
+    refused(["report", str(pristine), "-o", str(out), "--force", "--no-gaits"], capsys, "No space left on device", out)
     assert snapshot(out) == before  # nothing renamed into place, every temporary file removed
     assert len(written) == 3
 
