@@ -205,7 +205,8 @@ def filled(repertoire):
 def test_extinction_removes_about_p_of_the_elites(task):
     """On the engine of the human run, in an archive of its size with every cell filled
     (fresh policies put in by hand): 30 draws of extinction at 0.5 kill about half of the
-    elites re-scored, none die at 0 and all at 1."""
+    elites re-scored, none die at 0 and all at 1; once the elites are in the cells of their
+    own scores, a re-evaluation in the same body keeps every one in its cell."""
     from smol_dsl.qdax.scoring import LANE
 
     engine = shared_engine(task, CONFIG, tuple(jax.local_devices()), 1, 1)
@@ -219,16 +220,24 @@ def test_extinction_removes_about_p_of_the_elites(task):
     archive = jax.tree.map(lambda x: np.asarray(x)[None], archive)
     assert filled(archive) == cells
 
+    def reevaluated(source, extinction, seed):
+        rate, key = engine.put(jnp.full((1,), extinction, jnp.float32)), engine.put(jax.random.key(seed)[None])
+        fresh, counts = engine.reevaluate(engine.put(source), alpha, start, rate, key)
+        assert counts.non_finite[0] == 0
+        return jax.device_get(fresh), counts
+
     def died(extinction, seed):
-        rate = engine.put(jnp.full((1,), extinction, jnp.float32))
-        _, counts = engine.reevaluate(engine.put(archive), alpha, start, rate, engine.put(jax.random.key(seed)[None]))
-        assert counts.reevaluated[0] == cells and counts.non_finite[0] == 0
+        _, counts = reevaluated(archive, extinction, seed)
+        assert counts.reevaluated[0] == cells
         return int(counts.died[0])
 
     assert died(0.0, 0) == 0  # nobody is lost but by extinction
     deaths = [died(0.5, k) for k in range(1, 31)]
     assert 0.38 < np.mean(deaths) / cells < 0.62
     assert died(1.0, 0) == cells
+    scored, _ = reevaluated(archive, 0.0, 0)  # every elite in the cell of its own score
+    _, counts = reevaluated(scored, 0.0, 1)  # same alpha, same cells
+    assert counts.kept[0] == counts.reevaluated[0] == filled(scored) >= 1 and counts.died[0] == 0
 
 
 @pytest.mark.slow

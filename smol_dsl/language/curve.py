@@ -253,9 +253,8 @@ class Curve:
 
     def draws(self, key: jax.Array | None = None) -> list[jax.Array | None]:
         """The uniform [0, 1) draws of each random segment under `key` (None elsewhere)."""
-
         draws: list[jax.Array | None] = [None] * len(self.segments)
-        for indices, drawn in zip(self._draw_groups().values(), self._drawn_groups(key)):
+        for indices, drawn in self._drawn_groups(key):
             for row, j in enumerate(indices):
                 draws[j] = drawn[row]
         return draws
@@ -268,8 +267,9 @@ class Curve:
                 by_count.setdefault(segment.draws.count, []).append(segment.index)
         return by_count
 
-    def _drawn_groups(self, key: jax.Array | None) -> list[jax.Array]:
-        """For each group of `_draw_groups`, its segments' draws, one row per segment."""
+    def _drawn_groups(self, key: jax.Array | None) -> list[tuple[list[int], jax.Array]]:
+        """Each group of `_draw_groups`: its segments' indices and their draws, one row per
+        segment."""
         import jax
 
         key = self.channel_key(key)
@@ -279,7 +279,7 @@ class Curve:
         groups = []
         for count, indices in self._draw_groups().items():
             keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, jax.numpy.asarray(indices))
-            groups.append(jax.vmap(lambda k, count=count: jax.random.uniform(k, (count,)))(keys))
+            groups.append((indices, jax.vmap(lambda k, count=count: jax.random.uniform(k, (count,)))(keys)))
         return groups
 
     def _flat_draws(self, key: Any) -> jax.Array:
@@ -288,7 +288,7 @@ class Curve:
         slice per segment, which makes a program of many random segments slow to compile)."""
         import jax.numpy as jnp
 
-        flat = jnp.concatenate([drawn.reshape(-1) for drawn in self._drawn_groups(key)])
+        flat = jnp.concatenate([drawn.reshape(-1) for _, drawn in self._drawn_groups(key)])
         order = self._flat_draw_order()
         return flat if order is None else flat[order]
 
