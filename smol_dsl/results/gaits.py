@@ -191,17 +191,6 @@ def check_cell(archive: Archive, cell: int, directory: Path) -> int:
     return cell
 
 
-def phase_bodies(run: RunRecord) -> tuple[tuple[str, ...], np.ndarray]:
-    """The run's schedule channels and the body of every phase (phases, channels), as it
-    trained: the schedule's certified values under the run's seed."""
-    from smol_dsl.language.schedule import parse
-    from smol_dsl.seeds import schedule_key
-
-    schedule = parse(run.schedule_source, path=str(run.directory / "schedule.sched"))
-    values = schedule.checked_phase_values(run.config.num_phases, schedule_key(run.seed), schedule.channels)
-    return tuple(channel.name for channel in schedule.channels), np.asarray(values, dtype=np.float32)
-
-
 def resolve_bodies(specs: Sequence[str], run: RunRecord) -> list[tuple[str, dict[str, float]]]:
     """Each of `specs` (`resolve_body`), the run's phase bodies computed once; a body given
     twice, or factors outside what the run's task's physics takes (`TaskSpec.body_problem`,
@@ -209,7 +198,7 @@ def resolve_bodies(specs: Sequence[str], run: RunRecord) -> list[tuple[str, dict
     from smol_dsl.language.channels import Channel
     from smol_dsl.tasks import task_spec
 
-    names, bodies = phase_bodies(run)
+    names, bodies = tuple(channel.name for channel in run.channels), run.phase_bodies()
     resolved = []
     for index, spec in enumerate(specs):
         if spec.strip() in (earlier.strip() for earlier in specs[:index]):

@@ -89,8 +89,9 @@ class PValueTable:
             lines.append("| " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 
-    def html(self) -> str:
-        """The table as an HTML table (the best median and p < SIGNIFICANCE in bold)."""
+    def html(self, table_id: str = "pvalues") -> str:
+        """The table as an HTML table (the best median and p < SIGNIFICANCE in bold) with
+        the id `table_id`."""
         esc = html.escape
         head = "".join(f"<th>p: {esc(c)} better</th>" for c in self.columns)
         rows = []
@@ -98,7 +99,7 @@ class PValueTable:
             cells = [esc(row), str(self.runs[row]), *self._scores(row, lambda text: f"<b>{text}</b>")]
             rows.append("<tr>" + "".join(f"<td>{cell}</td>" for cell in cells) + "</tr>")
         return (
-            '<table id="pvalues" border="1" cellpadding="4" style="border-collapse: collapse">'
+            f'<table id="{html.escape(table_id)}" border="1" cellpadding="4" style="border-collapse: collapse">'
             f"<tr><th>schedule</th><th>runs</th><th>median score</th>{head}</tr>" + "".join(rows) + "</table>"
         )
 
@@ -149,13 +150,18 @@ def pvalue_table(groups: dict[str, list[RunRecord]], metric: str | None = None) 
     """The paper's table: rows every schedule, columns the SMOL curricula present (all
     schedules when none is), each cell the one-sided Mann-Whitney U p-value of "column
     better than row" on final scores."""
-    from scipy.stats import mannwhitneyu
-
     task = next(iter(groups.values()))[0].task
     metric = metric or task_spec(task).default_metric
-    scores = final_scores(groups, metric)
-    names = list(groups)
-    columns = [name for name in CURRICULA if name in groups] or names
+    return score_table(task, metric, final_scores(groups, metric))
+
+
+def score_table(task: str, metric: str, scores: dict[str, np.ndarray]) -> PValueTable:
+    """`pvalue_table`'s layout and tests on any score per run (`scores`: each schedule's,
+    one per seed, in the order the table lists the schedules)."""
+    from scipy.stats import mannwhitneyu
+
+    names = list(scores)
+    columns = [name for name in CURRICULA if name in scores] or names
     rows = columns + [name for name in names if name not in columns]
     pvalues: dict[str, dict[str, float | None]] = {}
     for row in rows:
@@ -172,6 +178,6 @@ def pvalue_table(groups: dict[str, list[RunRecord]], metric: str | None = None) 
         rows=rows,
         columns=columns,
         medians={name: float(np.median(scores[name])) for name in names},
-        runs={name: len(groups[name]) for name in names},
+        runs={name: len(scores[name]) for name in names},
         pvalues=pvalues,
     )

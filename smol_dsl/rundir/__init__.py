@@ -25,7 +25,9 @@ Modules, one concept each:
 - `checkpoint`: a checkpoint's arrays (`checkpoint_contents`; `open_checkpoint` checks one
   before it is loaded) and each run's progress in it (`RunState`);
 - `sweep`: sweep.json (`sweep_description`, `sweep_differences`);
-- `record`: a run directory as a whole (`write_run_files`; `read_run` -> `RunRecord`).
+- `record`: a run directory as a whole (`write_run_files`; `read_run` -> `RunRecord`);
+- `robustness`: robustness.csv, what `smol-dsl robustness` measured of finished runs
+  (`RobustnessRow`, `write_robustness`, `read_robustness`).
 
 Writing, for the runner (every file is written atomically, and an OSError names the file
 that could not be written):
@@ -79,6 +81,7 @@ from smol_dsl.rundir.layout import (
     LOCK_FILE,
     METRICS_FIGURE,
     METRICS_FILE,
+    ROBUSTNESS_FILE,
     RUN_MARKERS,
     SCHEDULE_FILE,
     SWEEP_CHECKPOINT_FILE,
@@ -108,6 +111,7 @@ from smol_dsl.rundir.metrics import (
 from smol_dsl.rundir.metrics_reader import final_body_evaluations, first_tail_phase, read_metrics, schema_of_header
 from smol_dsl.rundir.presets import PRESETS, preset_config
 from smol_dsl.rundir.record import RunRecord, read_run, write_run_files
+from smol_dsl.rundir.robustness import MEDIAN, RobustnessRow, read_robustness, write_robustness
 
 __all__ = [
     "ALPHA",
@@ -124,6 +128,7 @@ __all__ = [
     "GENOTYPES",
     "LANES",
     "LOCK_FILE",
+    "MEDIAN",
     "METRICS_FIGURE",
     "METRICS_FILE",
     "METRICS_SCHEMA",
@@ -131,6 +136,7 @@ __all__ = [
     "PRESETS",
     "REEVALUATION_FIELDS",
     "RESUME_COMPARED",
+    "ROBUSTNESS_FILE",
     "RUN_MARKERS",
     "SCHEDULE_FILE",
     "SCORES",
@@ -143,6 +149,7 @@ __all__ = [
     "FinalArchive",
     "MetricsLog",
     "MetricsSchema",
+    "RobustnessRow",
     "RunConfig",
     "RunDirectoryError",
     "RunRecord",
@@ -169,6 +176,7 @@ __all__ = [
     "read_environment_changes",
     "read_final_archive",
     "read_metrics",
+    "read_robustness",
     "read_run",
     "read_text",
     "record_environment_change",
@@ -177,6 +185,7 @@ __all__ = [
     "scoring_layout",
     "write_archive",
     "write_npz",
+    "write_robustness",
     "write_run_files",
     "write_text",
 ]

@@ -29,6 +29,7 @@ ARCHIVE_FIGURE = "archive.png"
 LOCK_FILE = ".smol-dsl.lock"
 SWEEP_FILE = "sweep.json"
 SWEEP_CHECKPOINT_FILE = "sweep-checkpoint.npz"
+ROBUSTNESS_FILE = "robustness.csv"  # `smol-dsl robustness`'s measurements, beside the runs (rundir.robustness)
 
 FILES = (
     (CONFIG_FILE, "the resolved settings (`RunConfig`)"),

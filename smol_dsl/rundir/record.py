@@ -130,6 +130,17 @@ class RunRecord:
         phase starts; for plain gear, where alpha is 1 for good)."""
         return final_body_evaluations(self.rows, first_tail_phase(self.tail_start, self.config.num_phases))
 
+    def phase_bodies(self) -> np.ndarray:
+        """The body of every phase as the run trained in it, (phases, channels) in the order
+        of `channels`: the schedule's certified values under the run's seed (float32)."""
+        from smol_dsl.seeds import schedule_key
+
+        schedule = _parsed(self.schedule_source)
+        if isinstance(schedule, ScheduleError):
+            raise RunDirectoryError(f"{self.directory / SCHEDULE_FILE}: {schedule}")
+        values = schedule.checked_phase_values(self.config.num_phases, schedule_key(self.seed), schedule.channels)
+        return np.asarray(values, dtype=np.float32)
+
     def final_archive(self) -> FinalArchive:
         """The final archive, read (and checked) if it was not."""
         return self.archive if self.archive is not None else read_final_archive(self.directory, self.config)

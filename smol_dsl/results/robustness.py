@@ -1,0 +1,328 @@
+"""What `smol-dsl robustness` writes from its measurements (robustness.csv's rows): per
+schedule, over seeds, how much of a final archive survives each perturbation, as a table
+with one-sided U-tests on robust coverage (`robustness_tables`, Markdown and LaTeX), a
+figure of survival against the body factor (`robustness_figure`), and the section the
+report adds (`report_section`). Drawn from plain rows: nothing here imports JAX.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+from smol_dsl.results.figures import legend_label, place_legend
+from smol_dsl.results.report_figures import schedule_styles
+from smol_dsl.results.runs import ReportError
+from smol_dsl.results.statistics import SIGNIFICANCE, PValueTable, latex_escape, markdown_escape, score_table
+from smol_dsl.rundir import MEDIAN, ROBUSTNESS_FILE, RobustnessRow, read_robustness
+from smol_dsl.rundir.robustness import robustness_csv
+
+if TYPE_CHECKING:
+    from smol_dsl.runner.robustness import Perturbations
+
+ROBUSTNESS_FILES = ("robustness.csv", "robustness.md", "robustness.tex", "robustness.png", "robustness.pdf")
+"""What `smol-dsl robustness` writes (robustness.csv is `smol_dsl.rundir`'s ROBUSTNESS_FILE)."""
+BODY = "body "
+SURVIVAL_PANELS = (
+    ("kept_share", "elites that kept their cell\n(% of the cells filled before)"),
+    ("filled_share", "cells still filled\n(% of the cells filled before)"),
+)
+
+
+@dataclass(frozen=True)
+class Robustness:
+    """robustness.csv's rows with the order of the schedules (the report's)."""
+
+    task: str
+    rows: list[RobustnessRow]
+    schedules: list[str]
+
+    @property
+    def perturbations(self) -> list[str]:
+        return list(dict.fromkeys(row.perturbation for row in self.rows))
+
+    def per_run(self, perturbation: str, sample: str, value: str) -> dict[str, np.ndarray]:
+        """Each schedule's `value` (a RobustnessRow field or share) of one sample, one per seed."""
+        return {
+            name: np.asarray(
+                [
+                    getattr(row, value)
+                    for row in self.rows
+                    if row.schedule == name and row.perturbation == perturbation and row.sample == sample
+                ],
+                dtype=float,
+            )
+            for name in self.schedules
+        }
+
+    def samples(self, perturbation: str) -> list[RobustnessRow]:
+        """The first run's rows of a perturbation's samples (its labels and factors), in order."""
+        first = self.rows[0].directory
+        return [
+            row
+            for row in self.rows
+            if row.directory == first and row.perturbation == perturbation and row.sample != MEDIAN
+        ]
+
+
+def robustness_of(rows: Sequence[RobustnessRow], task: str, order: Sequence[str] = ()) -> Robustness:
+    """The rows, their schedules in `order` first (the report's), then as they come."""
+    names = list(
+        dict.fromkeys([name for name in order if any(r.schedule == name for r in rows)] + [r.schedule for r in rows])
+    )
+    return Robustness(task, list(rows), names)
+
+
+def robustness_tables(robustness: Robustness) -> dict[str, PValueTable]:
+    """Per perturbation, the one-sided U-tests of "column's robust coverage is higher than
+    the row's" (the coverage of each run's corrected archive: `MEDIAN` rows), in the
+    layout of the report's table."""
+    return {
+        perturbation: score_table(
+            robustness.task, f"robust coverage ({perturbation})", robustness.per_run(perturbation, MEDIAN, "coverage")
+        )
+        for perturbation in robustness.perturbations
+    }
+
+
+def _quartiles(values: np.ndarray) -> tuple[float, float, float]:
+    finite = values[np.isfinite(values)]
+    if not len(finite):
+        return math.nan, math.nan, math.nan
+    low, median, high = np.percentile(finite, [25, 50, 75])
+    return float(low), float(median), float(high)
+
+
+def _median_iqr(values: np.ndarray) -> str:
+    low, median, high = _quartiles(values)
+    return "-" if math.isnan(median) else f"{median:.1f} [{low:.1f}, {high:.1f}]"
+
+
+def summary_markdown(robustness: Robustness) -> str:
+    """Per schedule: its runs, cells filled, and per perturbation the median [IQR] over
+    seeds of the share of elites kept in their cell and of the robust coverage."""
+    perturbations = robustness.perturbations
+    header = ["schedule", "runs", "cells filled"]
+    for perturbation in perturbations:
+        header += [f"{perturbation}: kept %", f"{perturbation}: robust coverage %"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
+    for name in robustness.schedules:
+        cells = robustness.per_run(perturbations[0], MEDIAN, "cells")[name]
+        cells_text = _median_iqr(cells)
+        row = [markdown_escape(name), str(len(cells)), cells_text]
+        for perturbation in perturbations:
+            row.append(_median_iqr(_mean_over_samples(robustness, perturbation, name)))
+            row.append(_median_iqr(robustness.per_run(perturbation, MEDIAN, "coverage")[name]))
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _mean_over_samples(robustness: Robustness, perturbation: str, name: str, value: str = "kept_share") -> np.ndarray:
+    """Each run's `value` (the share of elites kept in their cell), averaged over the
+    perturbation's samples."""
+    samples = [row.sample for row in robustness.samples(perturbation)]
+    return np.stack([robustness.per_run(perturbation, sample, value)[name] for sample in samples]).mean(axis=0)
+
+
+def body_markdown(robustness: Robustness, perturbation: str) -> str:
+    """Per schedule, the median [IQR] over seeds of the elites kept in their cell at each
+    of a body perturbation's factors."""
+    samples = robustness.samples(perturbation)
+    header = ["schedule", *(f"{markdown_escape(row.sample)}" for row in samples)]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * len(samples)) + "|"]
+    for name in robustness.schedules:
+        cells = [_median_iqr(robustness.per_run(perturbation, row.sample, "kept_share")[name]) for row in samples]
+        lines.append("| " + " | ".join([markdown_escape(name), *cells]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def robustness_markdown(robustness: Robustness) -> str:
+    """robustness.md: the summary, each body perturbation's survival per factor, and the
+    U-test tables on robust coverage, with what each column means."""
+    tables = robustness_tables(robustness)
+    parts = [
+        f"# {robustness.task}: how much of each final archive survives a change\n",
+        "Every final archive re-scored under each perturbation's samples into a fresh archive on its centroids. "
+        "*kept %*: elites that kept their own cell, in % of the cells filled before (mean over the samples); "
+        "*robust coverage %*: the coverage of the corrected archive, each elite at its median fitness and "
+        "descriptor over the samples (QDax's `reevaluation_function`). Median [25th, 75th percentile] over seeds.\n",
+        summary_markdown(robustness),
+    ]
+    for perturbation in robustness.perturbations:
+        if perturbation.startswith(BODY):
+            parts += [
+                f"## {perturbation}: elites kept in their cell (%), per factor\n",
+                body_markdown(robustness, perturbation),
+            ]
+    for perturbation, table in tables.items():
+        notes = "".join(f"\n- note: {note}" for note in table.notes())
+        parts.append(
+            f'## U-tests on robust coverage ({perturbation})\n\nOne-sided Mann-Whitney U: p-value of "the column '
+            f"schedule's robust coverage is higher than the row's\"; p < {SIGNIFICANCE} in bold.\n\n"
+            f"{table.markdown()}{notes}\n"
+        )
+    return "\n".join(parts)
+
+
+def robustness_latex(robustness: Robustness) -> str:
+    """robustness.tex: the U-test tables on robust coverage, one per perturbation."""
+    out = []
+    for perturbation, table in robustness_tables(robustness).items():
+        out.append(
+            f"% {robustness.task}: robust coverage ({latex_escape(perturbation)}), one-sided U-tests\n{table.latex()}"
+        )
+    return "\n".join(out)
+
+
+def robustness_figure(robustness: Robustness) -> Figure:
+    """What survives, median (line or point) and IQR (band or bar) over seeds, one colour per
+    schedule: per body perturbation, the elites that kept their cell and the cells still
+    filled against the factor; for the others (the float path, other starts), the same
+    shares, averaged over each run's samples, side by side."""
+    bodies = [p for p in robustness.perturbations if p.startswith(BODY)]
+    others = [p for p in robustness.perturbations if not p.startswith(BODY)]
+    rows = len(bodies) + (1 if others else 0)
+    figure = Figure(figsize=(5.2 * len(SURVIVAL_PANELS), 3.4 * rows), layout="constrained")
+    axes = np.asarray(figure.subplots(rows, len(SURVIVAL_PANELS), squeeze=False))
+    styles = schedule_styles(robustness.schedules)
+    for row_axes, perturbation in zip(axes, bodies, strict=False):
+        samples = robustness.samples(perturbation)
+        factors = np.asarray([row.factor for row in samples])
+        order = np.argsort(factors)
+        for ax, (value, label) in zip(row_axes, SURVIVAL_PANELS, strict=True):
+            for name, style in zip(robustness.schedules, styles, strict=True):
+                values = np.stack([robustness.per_run(perturbation, row.sample, value)[name] for row in samples])
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    low, median, high = np.nanpercentile(values, [25, 50, 75], axis=1)
+                shown = legend_label(f"{name} ({values.shape[1]})")
+                ax.plot(factors[order], median[order], marker=".", lw=1.5, label=shown, **style)
+                ax.fill_between(factors[order], low[order], high[order], color=style["color"], alpha=0.2, lw=0)
+            ax.axvline(1.0, color="0.5", ls=":", lw=1.0)
+            ax.xaxis.set_major_locator(MaxNLocator(6))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+            ax.set_xlabel(f"{perturbation.removeprefix(BODY)} factor (times the final body's)")
+            ax.set_ylabel(label)
+    if others:
+        width = 0.8 / max(1, len(robustness.schedules))
+        for ax, (value, label) in zip(axes[-1], SURVIVAL_PANELS, strict=True):
+            for number, (name, style) in enumerate(zip(robustness.schedules, styles, strict=True)):
+                for place, perturbation in enumerate(others):
+                    low, median, high = _quartiles(_mean_over_samples(robustness, perturbation, name, value))
+                    x = place - 0.4 + width * (number + 0.5)
+                    ax.bar(x, median, width * 0.9, color=style["color"], alpha=0.6, label=None if place else name)
+                    ax.errorbar([x], [median], yerr=[[median - low], [high - median]], color="0.2", capsize=2, lw=1)
+            ax.set_xticks(range(len(others)), [f"{p} (final body)" for p in others])
+            ax.set_ylabel(label)
+    for ax in axes.flat:
+        ax.set_ylim(0, 105)
+        ax.grid(alpha=0.25)
+    place_legend(figure, axes[0][0], title="schedule (runs)" if bodies else "schedule", title_fontsize=8)
+    figure.suptitle(f"{robustness.task}: what survives a change (median and IQR over seeds)")
+    return figure
+
+
+def robustness_files(robustness: Robustness, relative_to: Path) -> dict[str, bytes]:
+    """Every file `smol-dsl robustness` writes, by name, in memory: robustness.csv (run
+    directories relative to `relative_to` where below it), .md, .tex, and the figure as PNG
+    and PDF."""
+    files = {
+        ROBUSTNESS_FILE: robustness_csv(robustness.rows, relative_to).encode(),
+        "robustness.md": robustness_markdown(robustness).encode(),
+        "robustness.tex": robustness_latex(robustness).encode(),
+    }
+    figure = robustness_figure(robustness)
+    for suffix in ("png", "pdf"):
+        image = io.BytesIO()
+        figure.savefig(image, format=suffix, dpi=130)
+        files[f"robustness.{suffix}"] = image.getvalue()
+    return files
+
+
+def robustness_for_report(path: Path, groups: Mapping[str, Sequence[object]], task: str) -> Robustness:
+    """robustness.csv at `path`, checked against the report's runs (`groups`: each
+    schedule's RunRecords): every run has its rows and no row is of another run."""
+    rows = read_robustness(path)
+    reported = {str(Path(run.directory).resolve()): (name, run) for name, runs in groups.items() for run in runs}  # type: ignore[attr-defined]
+    measured = {row.directory for row in rows}
+    missing = [directory for directory in reported if directory not in measured]
+    if missing:
+        raise ReportError(
+            f"{path} has no measurements of {missing[0]}"
+            + (f" (nor of {len(missing) - 1} more run(s))" if len(missing) > 1 else "")
+            + f"; measure again with `smol-dsl robustness DIR... -o {path.parent} --force` on the runs you report"
+        )
+    mine = [row for row in rows if row.directory in reported]
+    return robustness_of(mine, task, list(groups))
+
+
+@dataclass(frozen=True)
+class RobustnessReport:
+    """What `measure_and_write` measured and wrote."""
+
+    robustness: Robustness
+    files: list[Path]
+
+
+def check_robustness_output(out_dir: str | Path, force: bool = False) -> list[str]:
+    """Refuse (ReportError) an output directory that is a file, cannot be made or written,
+    or holds earlier robustness files (unless `force`); returns those files."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ReportError(f"{out} is a file, not a directory: -o names the directory robustness.csv goes into")
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ReportError(f"cannot create {out}: {existing} is a file, not a directory; give another -o")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ReportError(f"cannot write into {existing} (permission denied); give another -o")
+    blocked = [name for name in ROBUSTNESS_FILES if (out / name).is_dir()]
+    if blocked:
+        raise ReportError(f"{out / blocked[0]} is a directory, where a file goes; move it, or give another -o")
+    earlier = [name for name in ROBUSTNESS_FILES if (out / name).is_file()]
+    if earlier and not force:
+        raise ReportError(
+            f"{out} already holds robustness measurements ({', '.join(earlier)}); give --force to replace them "
+            "(force=True in Python), or another output directory with -o"
+        )
+    return earlier
+
+
+def measure_and_write(
+    paths: Sequence[str | Path],
+    out_dir: str | Path,
+    perturbations: Perturbations | None = None,
+    *,
+    force: bool = False,
+    allow_mixed_environments: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> RobustnessReport:
+    """Re-score the final archives of the finished runs below `paths` under `perturbations`
+    (`smol_dsl.runner.robustness`) and write robustness.csv, .md, .tex, .png and .pdf into
+    `out_dir`, together and atomically. Everything is checked before anything is measured
+    (the output directory, the runs as `report` checks them, the perturbations), and
+    measured before anything is written."""
+    from smol_dsl.results.report import write_files
+    from smol_dsl.results.runs import load_runs
+    from smol_dsl.runner.robustness import Perturbations, check_perturbations, measure_robustness
+
+    perturbations = perturbations if perturbations is not None else Perturbations()
+    check_robustness_output(out_dir, force)
+    groups = load_runs(paths, allow_mixed_environments)
+    runs = [run for group in groups.values() for run in group]
+    check_perturbations(runs, perturbations)
+    rows = measure_robustness(runs, perturbations, progress=progress)
+    robustness = robustness_of(rows, runs[0].task, list(groups))
+    files = robustness_files(robustness, Path(out_dir))
+    return RobustnessReport(robustness, write_files(out_dir, files))

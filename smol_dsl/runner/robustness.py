@@ -1,0 +1,478 @@
+"""How much of a finished run's final archive survives a change: of body, of episode start,
+or of the compiled program that scores it (`smol-dsl robustness`).
+
+Each perturbation is a set of samples; each sample re-scores every elite of the final
+archive once and inserts the results into a fresh archive on the same centroids (QDax's
+`MapElitesRepertoire.add`: collisions keep the best), which says how many elites kept
+their cell, moved, collided or died (`smol_dsl.rundir.RobustnessRow`). Then, as QDax's
+`reevaluation_function` builds its corrected repertoire, each elite's median fitness and
+descriptor over the perturbation's samples go into one more fresh archive: its coverage
+and max fitness are the robust ones (the row whose sample is `median`).
+
+- `body CHANNEL`: the final body with that channel's factor times each of `factors`
+  (default `DEFAULT_FACTORS`: the paper's SMOL step of 0.56% and changes up to 10%);
+- `float path`: the same body in another layout of the program (a batch of twice the
+  run's, elites in the order of the filled cells, as the runner's own re-evaluation lays
+  them out), as another machine would score it;
+- `starts`: other episode starts drawn from the task's reset distribution, K of them.
+
+Bodies and starts are scored by the very program the run trained with, rebuilt from
+environment.json's layout with every elite in its lane (`smol_dsl.runner.replay`), the body
+and the start traced inputs: one compilation for every factor and start, and a body factor
+of 1 reproduces the archive bit for bit, so that what a sample measures is its
+perturbation and nothing else. The runs of a sweep are scored together, as they trained.
+Importing this module imports no JAX; measuring does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from smol_dsl.errors import UserInputError, counted
+from smol_dsl.rundir import MEDIAN, RobustnessRow, load_archive
+from smol_dsl.tasks import task_spec
+
+if TYPE_CHECKING:
+    from smol_dsl.language.channels import Channel
+    from smol_dsl.rundir import Archive, RunRecord
+    from smol_dsl.runner.engine import Engine
+
+DEFAULT_FACTORS = (0.9, 0.95, 0.99, 0.9944, 1.0056, 1.01, 1.05, 1.1)
+"""Body factors around the final body: the paper's SMOL step from one phase to the next
+(alpha 1.5 to 1 over 90 phases: 0.56%) each way, and changes of 1, 5 and 10%."""
+DEFAULT_STARTS = 8
+OTHER_STARTS = 0x5A27  # folded into a run's seed (with the start's number) for its other episode starts
+BODY = "body"
+FLOAT_PATH = "float path"
+STARTS = "starts"
+
+
+class RobustnessError(UserInputError):
+    """Runs or perturbations that `smol-dsl robustness` cannot measure."""
+
+
+@dataclass(frozen=True)
+class Perturbations:
+    """What to re-score every final archive under: `bodies`, (channel name, factors) pairs,
+    each factor multiplying that channel's final factor; `starts` other episode starts (0:
+    none); `float_path`, the same body in another program."""
+
+    bodies: tuple[tuple[str, tuple[float, ...]], ...] = (("gear", DEFAULT_FACTORS),)
+    starts: int = DEFAULT_STARTS
+    float_path: bool = True
+
+    @property
+    def names(self) -> list[str]:
+        """The perturbations, as robustness.csv's `perturbation` column names them."""
+        return (
+            [f"{BODY} {channel}" for channel, _ in self.bodies]
+            + ([FLOAT_PATH] if self.float_path else [])
+            + ([STARTS] if self.starts else [])
+        )
+
+
+def check_perturbations(runs: Sequence[RunRecord], perturbations: Perturbations) -> None:
+    """A RobustnessError for what cannot be measured, before anything is: no runs, a run that
+    has not finished, nothing to measure, a start count below 0, a body factor that is not
+    finite and above 0 or given twice, a channel a run's schedule lacks, and a perturbed
+    body outside what the task's physics takes (`smol-dsl check --task`'s ranges)."""
+    from smol_dsl.language.channels import Channel
+
+    if not runs:
+        raise RobustnessError("no runs to measure; give run or sweep directories of finished runs")
+    unfinished = [run for run in runs if not run.finished or run.archive is None]
+    if unfinished:
+        raise RobustnessError(
+            f"{unfinished[0].directory} has not finished: it has no final archive to re-score"
+            + (f" (nor have {counted(len(unfinished) - 1, 'other run')})" if len(unfinished) > 1 else "")
+            + "; finish it with `--resume`, or leave it out"
+        )
+    if isinstance(perturbations.starts, bool) or not isinstance(perturbations.starts, int) or perturbations.starts < 0:
+        raise RobustnessError(f"starts {perturbations.starts!r}: a number of episode starts, at least 1 (0: none)")
+    if not perturbations.names:
+        raise RobustnessError("nothing to measure: give at least one body channel, some starts or the float path")
+    seen: set[Channel] = set()
+    for name, factors in perturbations.bodies:
+        try:
+            channel = Channel.parse(name)
+        except (ValueError, TypeError) as error:
+            raise RobustnessError(f"body {name}: {error}") from None
+        if channel in seen:
+            raise RobustnessError(f"body {name} is given twice; give each channel's factors once")
+        seen.add(channel)
+        _check_factors(name, factors)
+        for run in runs:
+            _check_run_body(run, channel, factors)
+
+
+def _check_factors(name: str, factors: Sequence[float]) -> None:
+    if not factors:
+        raise RobustnessError(f"body {name}: no factors; give some, e.g. {name}=0.9,1.1 or {name}=0.8:1.2:9")
+    for factor in factors:
+        if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not math.isfinite(factor) or factor <= 0:
+            raise RobustnessError(f"body {name}: factor {factor!r} is not a finite number above 0")
+    repeated = sorted({f for f in factors if list(factors).count(f) > 1})
+    if repeated:
+        raise RobustnessError(f"body {name}: factor {repeated[0]:g} is given twice; give each factor once")
+
+
+def _check_run_body(run: RunRecord, channel: Channel, factors: Sequence[float]) -> None:
+    if channel not in run.channels:
+        raise RobustnessError(
+            f"body {channel.name}: {run.directory}'s schedule ({run.schedule}) has no {channel.name} channel (its "
+            f"channels: {', '.join(c.name for c in run.channels)}); perturb a channel every run's schedule has"
+        )
+    final = dict(zip(run.channels, run.phase_bodies()[-1].tolist(), strict=True))
+    spec = task_spec(run.task)
+    for factor in factors:
+        problem = spec.body_problem({**final, channel: final[channel] * factor})
+        if problem is not None:
+            raise RobustnessError(
+                f"body {channel.name}={factor:g}: {run.directory}'s final {channel.name} "
+                f"({final[channel]:g}) times {factor:g} is outside what {run.task}'s physics takes: {problem}; "
+                f"give factors closer to 1 (`smol-dsl check --task {run.task}` shows the ranges)"
+            )
+
+
+def measure_robustness(
+    runs: Sequence[RunRecord],
+    perturbations: Perturbations = Perturbations(),
+    *,
+    progress: Callable[[str], None] | None = None,
+) -> list[RobustnessRow]:
+    """Every finished run's final archive re-scored under `perturbations` (checked first:
+    `check_perturbations`): a row per run, perturbation and sample, and per perturbation its
+    corrected archive's (`MEDIAN`), in the order of `runs`. `progress` is told each sample
+    as it starts."""
+    check_perturbations(runs, perturbations)
+    order = {id(run): number for number, run in enumerate(runs)}
+    rows: dict[int, list[RobustnessRow]] = {}
+    for program in scoring_programs(runs):
+        for placed in program.passes:
+            measured = _measure_pass(program, placed, perturbations, progress)
+            for position, run_rows in measured.items():
+                rows[order[id(placed[position])]] = run_rows
+    return [row for number in sorted(rows) for row in rows[number]]
+
+
+@dataclass(frozen=True)
+class ScoringProgram:
+    """Runs that share a scoring program (their task, settings, devices and layout), in
+    passes: each a {position among the program's runs: run}, no two runs in one position."""
+
+    config: Any  # the runs' RunConfig (its seed is the first run's)
+    devices: list[Any]
+    runs: int
+    runs_per_step: int | None
+    channels: tuple[Channel, ...]
+    passes: list[dict[int, RunRecord]]
+
+
+def scoring_programs(runs: Sequence[RunRecord]) -> list[ScoringProgram]:
+    """The runs grouped by the program that scored their archives (`replay_layout`); runs
+    whose program cannot be built again here (`inexact`) share one program of their own
+    settings, laid out for all of them."""
+    from smol_dsl.runner.layout import default_runs_per_step
+    from smol_dsl.runner.replay import replay_layout
+
+    exact: dict[str, tuple[Any, list[tuple[int, RunRecord]]]] = {}
+    loose: dict[str, list[RunRecord]] = {}
+    for run in runs:
+        layout = replay_layout(run)
+        settings = json.dumps(run.settings, sort_keys=True, default=str)
+        if layout.inexact is not None:
+            loose.setdefault(settings, []).append(run)
+            continue
+        key = json.dumps(
+            [settings, len(layout.devices), layout.runs, layout.runs_per_step, [c.name for c in layout.channels]]
+        )
+        exact.setdefault(key, (layout, []))[1].append((layout.index, run))
+    programs = []
+    for layout, placed in exact.values():
+        passes: list[dict[int, RunRecord]] = []
+        for index, run in placed:
+            free = next((p for p in passes if index not in p), None)
+            if free is None:
+                free = {}
+                passes.append(free)
+            free[index] = run
+        config = placed[0][1].config
+        programs.append(
+            ScoringProgram(config, layout.devices, layout.runs, layout.runs_per_step, layout.channels, passes)
+        )
+    for group in loose.values():
+        devices = replay_layout(group[0]).devices
+        channels = tuple(dict.fromkeys(channel for run in group for channel in run.channels))
+        passes = [dict(enumerate(group))]
+        programs.append(
+            ScoringProgram(group[0].config, devices, len(group), default_runs_per_step(devices), channels, passes)
+        )
+    return programs
+
+
+@dataclass
+class _Slots:
+    """One pass's runs laid out in their program's positions (padding repeats a run)."""
+
+    engine: Engine
+    runs: list[RunRecord]  # per position (padding: the first run)
+    real: list[bool]  # whether the position holds its own run (not padding)
+    archives: list[Archive]
+    filled: list[np.ndarray]  # each position's filled cells
+    bodies: np.ndarray  # (positions, channels): each run's final body
+    starts: Any  # each run's own episode start, stacked
+
+
+def _measure_pass(
+    program: ScoringProgram,
+    placed: dict[int, RunRecord],
+    perturbations: Perturbations,
+    progress: Callable[[str], None] | None,
+) -> dict[int, list[RobustnessRow]]:
+    from smol_dsl.runner.engine import shared_engine, stack_runs
+
+    engine = shared_engine(
+        program.config.task, program.config, program.devices, program.runs_per_step, program.runs, program.channels
+    )
+    positions = engine.padded_runs(program.runs)
+    first = next(iter(placed.values()))
+    runs = [placed.get(position, first) for position in range(positions)]
+    archives = {id(run): load_archive(run.directory) for run in placed.values()}
+    own_starts = {seed: engine.task.episode_start(seed) for seed in dict.fromkeys(run.config.seed for run in runs)}
+    slots = _Slots(
+        engine=engine,
+        runs=runs,
+        real=[position in placed for position in range(positions)],
+        archives=[archives[id(run)] for run in runs],
+        filled=[np.flatnonzero(archives[id(run)].filled) for run in runs],
+        bodies=np.asarray([_final_body(run, engine.channels) for run in runs], dtype=np.float32),
+        starts=stack_runs([own_starts[run.config.seed] for run in runs]),
+    )
+    samples = _samples(program, slots, perturbations)
+    total = sum(len(sampled) for _, sampled in samples)
+    rows: dict[int, list[RobustnessRow]] = {position: [] for position in placed}
+    done = 0
+    for perturbation, sampled in samples:
+        scores = []
+        for label, factor, score in sampled:
+            done += 1
+            if progress is not None:
+                progress(f"{perturbation} {label} ({done}/{total}, {counted(len(placed), 'run')})")
+            fitnesses, descriptors = score()
+            scores.append((fitnesses, descriptors))
+            for position in placed:
+                rows[position].append(
+                    _row(slots, position, perturbation, label, factor, fitnesses[position], descriptors[position])
+                )
+        for position in placed:  # the corrected archive: each elite's median over the samples
+            fitness = np.stack([f[position] for f, _ in scores])
+            descriptor = np.stack([d[position] for _, d in scores])
+            finite = np.isfinite(fitness).all(axis=0) & np.isfinite(descriptor).all(axis=(0, 2))
+            median_fitness = np.where(finite, np.median(fitness, axis=0), np.nan)
+            median_descriptor = np.median(descriptor, axis=0)
+            rows[position].append(
+                _row(slots, position, perturbation, MEDIAN, math.nan, median_fitness, median_descriptor)
+            )
+    return rows
+
+
+def _final_body(run: RunRecord, channels: Sequence[Channel]) -> list[float]:
+    """The run's final body as a row of the program's channels (1 where its schedule has none)."""
+    final = dict(zip(run.channels, run.phase_bodies()[-1].tolist(), strict=True))
+    return [final.get(channel, 1.0) for channel in channels]
+
+
+Sample = tuple[str, float, Callable[[], tuple[np.ndarray, np.ndarray]]]
+
+
+def _samples(program: ScoringProgram, slots: _Slots, perturbations: Perturbations) -> list[tuple[str, list[Sample]]]:
+    """Each perturbation with its samples: a label, a body factor (NaN where none) and a
+    function that scores every position's elites (fitnesses and descriptors by cell)."""
+    from smol_dsl.language.channels import Channel
+
+    in_lanes = _lane_chunks(slots, slots.engine.batch_size)
+    samples: list[tuple[str, list[Sample]]] = []
+    for name, factors in perturbations.bodies:
+        column = slots.engine.channels.index(Channel.parse(name))
+        sampled = []
+        for factor in factors:
+            bodies = slots.bodies.copy()
+            bodies[:, column] *= np.float32(factor)
+            sampled.append(
+                (f"x{factor:g}", float(factor), _scorer(slots.engine, slots, bodies, slots.starts, in_lanes))
+            )
+        samples.append((f"{BODY} {name}", sampled))
+    if perturbations.float_path:
+        other = _float_path_engine(program)
+        chunks = list(_cell_chunks(slots, other.batch_size))
+        samples.append(
+            (
+                FLOAT_PATH,
+                [(f"batch {other.batch_size}", math.nan, _scorer(other, slots, slots.bodies, slots.starts, chunks))],
+            )
+        )
+    if perturbations.starts:
+        sampled = []
+        for number in range(perturbations.starts):
+            starts = _other_starts(slots, number)
+            sampled.append((f"start {number}", math.nan, _scorer(slots.engine, slots, slots.bodies, starts, in_lanes)))
+        samples.append((STARTS, sampled))
+    return samples
+
+
+def _float_path_engine(program: ScoringProgram) -> Engine:
+    """The program with a batch twice the run's: another layout of the same computation."""
+    from smol_dsl.runner.engine import shared_engine
+
+    config = dataclasses.replace(program.config, batch_size=2 * program.config.batch_size)
+    return shared_engine(config.task, config, program.devices, program.runs_per_step, program.runs, program.channels)
+
+
+def _other_starts(slots: _Slots, number: int) -> Any:
+    """Every position's episode start number `number` of the `starts` perturbation: a draw
+    from the task's reset distribution keyed by the run's seed (made eagerly, as a run's own)."""
+    import jax
+
+    from smol_dsl.runner.engine import stack_runs
+    from smol_dsl.tasks.base import deterministic_init_state
+
+    env = slots.engine.task.env
+    made = {}
+    for run in slots.runs:
+        if run.config.seed not in made:
+            key = jax.random.fold_in(jax.random.key(run.config.seed), OTHER_STARTS + number)
+            made[run.config.seed] = deterministic_init_state(env, key)
+    return stack_runs([made[run.config.seed] for run in slots.runs])
+
+
+def _lane_chunks(slots: _Slots, batch_size: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Batches of every position's filled cells with each elite in its lane (`lane_batches`):
+    per batch, cell indices and which are real, both (positions, batch_size)."""
+    from smol_dsl.runner.replay import lane_batches
+
+    per_position = [
+        lane_batches(cells, archive.lanes, batch_size)
+        for cells, archive in zip(slots.filled, slots.archives, strict=True)
+    ]
+    chunks = []
+    for number in range(max(len(batches) for batches in per_position)):
+        index = np.zeros((len(per_position), batch_size), dtype=np.int64)
+        valid = np.zeros((len(per_position), batch_size), dtype=bool)
+        for position, batches in enumerate(per_position):
+            if number < len(batches):
+                batch = batches[number]
+                first = next(iter(batch.values()))
+                index[position] = [batch.get(lane, first) for lane in range(batch_size)]
+                valid[position] = [lane in batch for lane in range(batch_size)]
+        chunks.append((index, valid))
+    return chunks
+
+
+def _cell_chunks(slots: _Slots, batch_size: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Batches of every position's filled cells in cell order (`reevaluation_chunks`)."""
+    from smol_dsl.qdax.reevaluation import reevaluation_chunks
+
+    return list(reevaluation_chunks(slots.filled, batch_size))
+
+
+def _scorer(
+    engine: Engine, slots: _Slots, bodies: np.ndarray, starts: Any, chunks: list[tuple[np.ndarray, np.ndarray]]
+) -> Callable[[], tuple[np.ndarray, np.ndarray]]:
+    """Scores every position's elites in its body and start, batch by batch: (positions,
+    cells) fitnesses and (positions, cells, D) descriptors, NaN where a cell is empty."""
+
+    def score() -> tuple[np.ndarray, np.ndarray]:
+        cells, dimensions = slots.archives[0].descriptors.shape
+        fitnesses = np.full((len(slots.runs), cells), np.nan, dtype=np.float32)
+        descriptors = np.full((len(slots.runs), cells, dimensions), np.nan, dtype=np.float32)
+        for index, valid in chunks:
+            genotypes = _gathered([archive.genotypes for archive in slots.archives], index)
+            scored_fitnesses, scored_descriptors = engine.score(genotypes, bodies, starts)
+            for position in range(len(slots.runs)):
+                mine = valid[position]
+                fitnesses[position, index[position, mine]] = scored_fitnesses[position, mine]
+                descriptors[position, index[position, mine]] = scored_descriptors[position, mine]
+        return fitnesses, descriptors
+
+    return score
+
+
+def _gathered(trees: list[Any], index: np.ndarray) -> Any:
+    """The genotypes at `index[position]` of each position's archive, stacked (positions, B, ...)."""
+    if isinstance(trees[0], dict):
+        return {name: _gathered([tree[name] for tree in trees], index) for name in trees[0]}
+    return np.stack([np.asarray(leaf)[row] for leaf, row in zip(trees, index, strict=True)])
+
+
+def _row(
+    slots: _Slots,
+    position: int,
+    perturbation: str,
+    sample: str,
+    factor: float,
+    fitnesses: np.ndarray,
+    descriptors: np.ndarray,
+) -> RobustnessRow:
+    """What became of a position's elites scored `fitnesses` and `descriptors` (by cell)."""
+    run, archive, before = slots.runs[position], slots.archives[position], slots.filled[position]
+    finite = np.zeros(len(fitnesses), dtype=bool)
+    finite[before] = np.isfinite(fitnesses[before]) & np.isfinite(descriptors[before]).all(axis=1)
+    holder, best = reinserted(
+        archive.centroids, np.where(finite, fitnesses, -np.inf), np.where(finite[:, None], descriptors, 0)
+    )
+    filled = best > -np.inf
+    kept = int(np.sum(filled & (holder == np.arange(len(holder)))))
+    count = int(filled.sum())
+    died = len(before) - int(finite.sum())
+    return RobustnessRow(
+        directory=str(run.directory),
+        schedule=run.schedule,
+        seed=run.config.seed,
+        perturbation=perturbation,
+        sample=sample,
+        factor=factor,
+        cells=len(before),
+        filled=count,
+        kept=kept,
+        moved=count - kept,
+        collided=len(before) - died - count,
+        died=died,
+        coverage=100.0 * count / len(holder),
+        max_fitness=float(best.max()) if count else -math.inf,
+    )
+
+
+def reinserted(centroids: np.ndarray, fitnesses: np.ndarray, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every cell's elite (-inf fitness: none) inserted into a fresh archive on `centroids`
+    by QDax's `MapElitesRepertoire.add`: for each cell of the fresh archive, the cell whose
+    elite it holds and that elite's fitness (-inf where it is empty)."""
+    holder, best = _reinsert_program()(
+        np.asarray(centroids, np.float32), fitnesses.astype(np.float32), descriptors.astype(np.float32)
+    )
+    return np.asarray(holder), np.asarray(best).reshape(-1)
+
+
+_PROGRAMS: dict[str, Any] = {}
+
+
+def _reinsert_program() -> Any:
+    if "reinsert" not in _PROGRAMS:
+        import jax
+        import jax.numpy as jnp
+        from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
+
+        def reinsert(centroids: jax.Array, fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.Array, jax.Array]:
+            cells = centroids.shape[0]
+            fresh = MapElitesRepertoire.init_default(genotype=jnp.zeros((), jnp.int32), centroids=centroids)
+            fresh = fresh.add(jnp.arange(cells, dtype=jnp.int32), descriptors, fitnesses)
+            return fresh.genotypes, fresh.fitnesses
+
+        _PROGRAMS["reinsert"] = jax.jit(reinsert)
+    return _PROGRAMS["reinsert"]
