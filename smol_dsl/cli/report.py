@@ -12,6 +12,8 @@ from smol_dsl.errors import counted
 if TYPE_CHECKING:
     import argparse
 
+ASKED = "asked"  # --robustness given without a file
+
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     report = commands.add_parser(
@@ -42,6 +44,17 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         action="store_true",
         help="put runs produced under different software or hardware (environment.json) in one table",
     )
+    robust = report.add_mutually_exclusive_group()
+    robust.add_argument(
+        "--robustness",
+        nargs="?",
+        const=ASKED,
+        default="auto",
+        metavar="CSV",
+        help="add `smol-dsl robustness`'s measurements of these runs (robust coverage, its U-tests, the figure): "
+        "from CSV, or (the default) from the robustness.csv of any DIR that has one",
+    )
+    robust.add_argument("--no-robustness", action="store_true", help="leave robustness measurements out")
     gaits = report.add_mutually_exclusive_group()
     gaits.add_argument(
         "--gaits",
@@ -81,6 +94,14 @@ def write_report(args: argparse.Namespace) -> int:
 
         use_cpu_cores_as_devices()  # as the runs trained: their scoring programs (see `smol-dsl render`)
         replay = replay_elites
+    robustness = None if args.no_robustness else args.robustness
+    if robustness == ASKED:  # --robustness without a file: the DIRs must hold one
+        robustness = results_report.robustness_files_of(args.dirs, "auto")
+        if not robustness:
+            raise UsageError(
+                f"--robustness: no robustness.csv in {', '.join(args.dirs)}; measure first with `smol-dsl robustness "
+                f"{' '.join(args.dirs)}{' -o DIR' if len(args.dirs) > 1 else ''}`, or name the file: --robustness CSV"
+            )
     report = results_report.write_report(
         args.dirs,
         out,
@@ -89,6 +110,7 @@ def write_report(args: argparse.Namespace) -> int:
         gaits=gaits,
         replay=replay,
         allow_mixed_environments=args.allow_mixed_environments,
+        robustness=robustness,
     )
     table = report.table
     print(f"{table.task}, final {table.metric} ({counted(sum(table.runs.values()), 'run')}):\n")

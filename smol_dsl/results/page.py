@@ -18,10 +18,11 @@ def index_page(
     gaits: Sequence[tuple[str, bytes, str]],
     described: Sequence[tuple[str, str]] = (),
     compared_with_paper: bool = False,
+    robustness: str = "",
 ) -> bytes:
     """index.html: the table, what ran (`runs_described`), the figures (stem, caption) and
     the gaits, every image and link a file beside it (no script, style sheet or font from
-    anywhere)."""
+    anywhere); `robustness`, the robustness section's HTML, after the figures."""
     esc = html.escape
     images = "\n".join(
         f'<figure id="{esc(stem)}"><img src="{esc(stem)}.png" alt="{esc(text)}" style="max-width: 100%">'
@@ -55,6 +56,7 @@ def index_page(
 <ul id="what-ran">{ran}</ul>
 <h2>Figures</h2>
 {images}
+{robustness}
 {f"<h2>Gaits</h2>{moving}" if gaits else ""}
 <p>Also here: {", ".join(links)}.</p>
 </body></html>

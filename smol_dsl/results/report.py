@@ -23,9 +23,16 @@ from smol_dsl.results.conditions import ABLATIONS
 from smol_dsl.results.page import index_page
 from smol_dsl.results.paper import compare_with_paper
 from smol_dsl.results.report_figures import archives_figure, reevaluation_figure, results_figure
+from smol_dsl.results.robustness import (
+    Robustness,
+    robustness_figure_and_tables,
+    robustness_for_report,
+    robustness_html,
+    robustness_markdown,
+)
 from smol_dsl.results.runs import METRICS, ReportError, environment_mixing, load_runs, median_run, runs_described
 from smol_dsl.results.statistics import SIGNIFICANCE, PValueTable, markdown_escape, pvalue_table
-from smol_dsl.rundir import CONFIG_FILE, METRICS_FILE, METRICS_SCHEMA, RunRecord, is_run_directory
+from smol_dsl.rundir import CONFIG_FILE, METRICS_FILE, METRICS_SCHEMA, ROBUSTNESS_FILE, RunRecord, is_run_directory
 from smol_dsl.rundir.files import write_together
 from smol_dsl.tasks import descriptor_bounds
 
@@ -33,6 +40,8 @@ if TYPE_CHECKING:
     from smol_dsl.results.gaits import ReplayElites
     from smol_dsl.results.paper import Comparison
 
+ROBUSTNESS_REPORT_FILES = ("robustness.tex", "robustness.png", "robustness.pdf")
+"""What a report with robustness measurements adds (its tables go into table.md and index.html)."""
 FIGURE_STEMS = ("main-results", "ablation-results", "reevaluation", "archives")
 REPORT_FILES = (
     "table.md",
@@ -42,6 +51,7 @@ REPORT_FILES = (
     "paper-comparison.md",
     "paper-comparison.tex",
     *(f"{stem}{suffix}" for stem in FIGURE_STEMS for suffix in (".png", ".pdf")),
+    *ROBUSTNESS_REPORT_FILES,
 )
 """Every file a report may write but its gaits (`gaits-*.gif`): an output directory holding
 any of them holds a report."""
@@ -120,13 +130,16 @@ def render_report(
     gaits: int = 0,
     comparison: Comparison | None = None,
     replay: ReplayElites | None = None,
+    robustness: Robustness | None = None,
 ) -> dict[str, bytes]:
     """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv,
     paper-comparison.md and .tex (`comparison`: our p-values beside the paper's), the
     figures (PNG and PDF), with `gaits` > 0 a GIF of that many elites of each schedule's
     median run (`gaits-*.gif`: the best, then spread over the archive, rolled out by
     `replay`), and index.html, the page that shows them all and needs nothing but the files
-    beside it."""
+    beside it. With `robustness` (robustness.csv's measurements of these runs), table.md and
+    index.html get its section (`smol_dsl.results.robustness`), scores.csv each run's robust
+    coverage per perturbation, and robustness.tex, .png and .pdf are written."""
     files: dict[str, bytes] = {}
     label = METRICS_SCHEMA[table.metric].axis_label
     caption = (
@@ -136,15 +149,10 @@ def render_report(
     described = runs_described(groups)
     what_ran = "\n".join(f"- **{heading}**: {markdown_escape(text)}" for heading, text in described)
     notes = "".join(f"\n- note: {note}" for note in table.notes())
-    files["table.md"] = f"{caption}\n\n{table.markdown()}{notes}\n\n## What ran\n\n{what_ran}\n".encode()
+    robust = "" if robustness is None else "\n" + robustness_markdown(robustness, level=2)
+    files["table.md"] = f"{caption}\n\n{table.markdown()}{notes}\n{robust}\n## What ran\n\n{what_ran}\n".encode()
     files["pvalues.tex"] = f"% {caption}\n{table.latex()}".encode()
-    scores = io.StringIO(newline="")
-    writer = csv.writer(scores)
-    writer.writerow(["schedule", "seed", *METRICS, "directory"])
-    for name, runs in groups.items():
-        for run in runs:
-            writer.writerow([name, run.seed, *(run.final[m] for m in METRICS), str(run.directory)])
-    files["scores.csv"] = scores.getvalue().encode()
+    files["scores.csv"] = scores_csv(groups, robustness)
     if comparison is not None:  # a task and metric of the paper's table
         files["paper-comparison.md"] = comparison.markdown().encode()
         files["paper-comparison.tex"] = comparison.latex().encode()
@@ -183,12 +191,34 @@ def render_report(
             image = io.BytesIO()
             figure.savefig(image, format=suffix, dpi=130)
             files[f"{stem}.{suffix}"] = image.getvalue()
+    if robustness is not None:
+        files.update(robustness_figure_and_tables(robustness))
     shown = gait_files(groups, table.metric, gaits, replay) if gaits > 0 else []
     files.update({name: data for name, data, _ in shown})
     files["index.html"] = index_page(
-        table, caption, [(stem, captions[stem]) for stem in figures], shown, described, comparison is not None
+        table,
+        caption,
+        [(stem, captions[stem]) for stem in figures],
+        shown,
+        described,
+        comparison is not None,
+        robustness_html(robustness) if robustness is not None else "",
     )
     return files
+
+
+def scores_csv(groups: dict[str, list[RunRecord]], robustness: Robustness | None = None) -> bytes:
+    """scores.csv: every run's final scores (and robust coverage per perturbation, where
+    measured) with its directory."""
+    scores = io.StringIO(newline="")
+    writer = csv.writer(scores)
+    perturbations = robustness.perturbations if robustness is not None else []
+    writer.writerow(["schedule", "seed", *METRICS, *(f"robust coverage ({p})" for p in perturbations), "directory"])
+    for name, runs in groups.items():
+        for run in runs:
+            robust = [robustness.robust_coverage(run.directory, p) for p in perturbations] if robustness else []
+            writer.writerow([name, run.seed, *(run.final[m] for m in METRICS), *robust, str(run.directory)])
+    return scores.getvalue().encode()
 
 
 def gait_files(
@@ -237,6 +267,17 @@ def write_files(out_dir: str | Path, files: dict[str, bytes], remove: Sequence[s
     return written
 
 
+def robustness_files_of(
+    paths: Sequence[str | Path], robustness: str | Path | Sequence[str | Path] | None
+) -> list[Path]:
+    """The robustness.csv files a report reads (see `write_report`'s `robustness`)."""
+    if robustness is None:
+        return []
+    if isinstance(robustness, str) and robustness == "auto":
+        return [Path(p) / ROBUSTNESS_FILE for p in paths if (Path(p) / ROBUSTNESS_FILE).is_file()]
+    return [Path(robustness)] if isinstance(robustness, (str, os.PathLike)) else [Path(p) for p in robustness]
+
+
 def write_report(
     paths: Sequence[str | Path],
     out_dir: str | Path,
@@ -246,6 +287,7 @@ def write_report(
     gaits: int = 0,
     replay: ReplayElites | None = None,
     allow_mixed_environments: bool = False,
+    robustness: str | Path | Sequence[str | Path] | None = "auto",
 ) -> Report:
     """Table (table.md, pvalues.tex), final scores (scores.csv) and figures (PNG and PDF)
     of the runs below `paths`, with index.html showing them and (`gaits` > 0) that many elites
@@ -253,7 +295,9 @@ def write_report(
     `smol_dsl.runner.replay.replay_elites`), written into out_dir.
 
     Every run is read and checked, and every file drawn, before the first file is written;
-    each file is written atomically. An out_dir that already holds a report is refused
+    each file is written atomically. `robustness` adds `smol-dsl robustness`'s measurements of
+    these runs: "auto" (the default) those of the robustness.csv in any of `paths` where there
+    is one, else the robustness.csv path(s) given, None none. An out_dir that already holds a report is refused
     (ReportError) unless `force`, which replaces it (files of the earlier report that this one
     does not write, such as an ablation figure, are removed)."""
     if gaits > 0 and replay is None:  # before anything is read
@@ -262,6 +306,8 @@ def write_report(
     groups = load_runs(paths, allow_mixed_environments)
     table = pvalue_table(groups, metric)
     comparison = compare_with_paper(table, groups)
-    files = render_report(groups, table, gaits, comparison, replay)
+    measured = robustness_files_of(paths, robustness)
+    robust = robustness_for_report(measured, groups, table.task) if measured else None
+    files = render_report(groups, table, gaits, comparison, replay, robust)
     written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
     return Report(table, written, comparison, environment_mixing([run for runs in groups.values() for run in runs]))

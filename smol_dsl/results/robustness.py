@@ -7,6 +7,7 @@ report adds (`report_section`). Drawn from plain rows: nothing here imports JAX.
 
 from __future__ import annotations
 
+import html
 import io
 import math
 import os
@@ -28,6 +29,7 @@ from smol_dsl.rundir import MEDIAN, ROBUSTNESS_FILE, RobustnessRow, read_robustn
 from smol_dsl.rundir.robustness import robustness_csv
 
 if TYPE_CHECKING:
+    from smol_dsl.rundir import RunRecord
     from smol_dsl.runner.robustness import Perturbations
 
 ROBUSTNESS_FILES = ("robustness.csv", "robustness.md", "robustness.tex", "robustness.png", "robustness.pdf")
@@ -64,6 +66,17 @@ class Robustness:
             )
             for name in self.schedules
         }
+
+    def robust_coverage(self, directory: str | Path, perturbation: str) -> float:
+        """A run's robust coverage under a perturbation (its corrected archive's coverage)."""
+        resolved = str(Path(directory).resolve())
+        return next(
+            row.coverage
+            for row in self.rows
+            if Path(row.directory).resolve() == Path(resolved)
+            and row.perturbation == perturbation
+            and row.sample == MEDIAN
+        )
 
     def samples(self, perturbation: str) -> list[RobustnessRow]:
         """The first run's rows of a perturbation's samples (its labels and factors), in order."""
@@ -108,23 +121,43 @@ def _median_iqr(values: np.ndarray) -> str:
     return "-" if math.isnan(median) else f"{median:.1f} [{low:.1f}, {high:.1f}]"
 
 
-def summary_markdown(robustness: Robustness) -> str:
-    """Per schedule: its runs, cells filled, and per perturbation the median [IQR] over
-    seeds of the share of elites kept in their cell and of the robust coverage."""
+def summary_rows(robustness: Robustness) -> tuple[list[str], list[list[str]]]:
+    """The summary's header and rows: per schedule its runs, cells filled, and per
+    perturbation the median [IQR] over seeds of the share of elites kept in their cell
+    (averaged over the samples) and of the robust coverage."""
     perturbations = robustness.perturbations
     header = ["schedule", "runs", "cells filled"]
     for perturbation in perturbations:
         header += [f"{perturbation}: kept %", f"{perturbation}: robust coverage %"]
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
+    rows = []
     for name in robustness.schedules:
         cells = robustness.per_run(perturbations[0], MEDIAN, "cells")[name]
-        cells_text = _median_iqr(cells)
-        row = [markdown_escape(name), str(len(cells)), cells_text]
+        row = [name, str(len(cells)), _median_iqr(cells)]
         for perturbation in perturbations:
             row.append(_median_iqr(_mean_over_samples(robustness, perturbation, name)))
             row.append(_median_iqr(robustness.per_run(perturbation, MEDIAN, "coverage")[name]))
-        lines.append("| " + " | ".join(row) + " |")
+        rows.append(row)
+    return header, rows
+
+
+def summary_markdown(robustness: Robustness) -> str:
+    """The summary (`summary_rows`) as a Markdown table."""
+    header, rows = summary_rows(robustness)
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + ["---:"] * (len(header) - 1)) + "|"]
+    lines += ["| " + " | ".join([markdown_escape(row[0]), *row[1:]]) + " |" for row in rows]
     return "\n".join(lines) + "\n"
+
+
+def summary_html(robustness: Robustness) -> str:
+    """The summary (`summary_rows`) as an HTML table."""
+    esc = html.escape
+    header, rows = summary_rows(robustness)
+    head = "".join(f"<th>{esc(cell)}</th>" for cell in header)
+    body = "".join("<tr>" + "".join(f"<td>{esc(cell)}</td>" for cell in row) + "</tr>" for row in rows)
+    return (
+        '<table id="robustness-summary" border="1" cellpadding="4" style="border-collapse: collapse">'
+        f"<tr>{head}</tr>{body}</table>"
+    )
 
 
 def _mean_over_samples(robustness: Robustness, perturbation: str, name: str, value: str = "kept_share") -> np.ndarray:
@@ -146,31 +179,51 @@ def body_markdown(robustness: Robustness, perturbation: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def robustness_markdown(robustness: Robustness) -> str:
-    """robustness.md: the summary, each body perturbation's survival per factor, and the
-    U-test tables on robust coverage, with what each column means."""
-    tables = robustness_tables(robustness)
-    parts = [
-        f"# {robustness.task}: how much of each final archive survives a change\n",
-        "Every final archive re-scored under each perturbation's samples into a fresh archive on its centroids. "
-        "*kept %*: elites that kept their own cell, in % of the cells filled before (mean over the samples); "
-        "*robust coverage %*: the coverage of the corrected archive, each elite at its median fitness and "
-        "descriptor over the samples (QDax's `reevaluation_function`). Median [25th, 75th percentile] over seeds.\n",
-        summary_markdown(robustness),
-    ]
+EXPLAINED = (
+    "Every final archive re-scored under each perturbation's samples into a fresh archive on its centroids "
+    "(`smol-dsl robustness`). *kept %*: elites that kept their own cell, in % of the cells filled before (mean "
+    "over the samples); *robust coverage %*: the coverage of the corrected archive, each elite at its median "
+    "fitness and descriptor over the samples (QDax's `reevaluation_function`). Median [25th, 75th percentile] "
+    "over seeds."
+)
+
+
+def robustness_markdown(robustness: Robustness, level: int = 1) -> str:
+    """robustness.md (a section of the report's table.md with `level` 2): the summary, each
+    body perturbation's survival per factor, and the U-test tables on robust coverage."""
+    heading, sub = "#" * level, "#" * (level + 1)
+    parts = [f"{heading} {robustness.task}: how much of each final archive survives a change\n", EXPLAINED + "\n"]
+    parts.append(summary_markdown(robustness))
     for perturbation in robustness.perturbations:
         if perturbation.startswith(BODY):
             parts += [
-                f"## {perturbation}: elites kept in their cell (%), per factor\n",
+                f"{sub} {perturbation}: elites kept in their cell (%), per factor\n",
                 body_markdown(robustness, perturbation),
             ]
-    for perturbation, table in tables.items():
+    for perturbation, table in robustness_tables(robustness).items():
         notes = "".join(f"\n- note: {note}" for note in table.notes())
         parts.append(
-            f'## U-tests on robust coverage ({perturbation})\n\nOne-sided Mann-Whitney U: p-value of "the column '
-            f"schedule's robust coverage is higher than the row's\"; p < {SIGNIFICANCE} in bold.\n\n"
+            f'{sub} U-tests on robust coverage ({perturbation})\n\nOne-sided Mann-Whitney U: p-value of "the '
+            f"column schedule's robust coverage is higher than the row's\"; p < {SIGNIFICANCE} in bold.\n\n"
             f"{table.markdown()}{notes}\n"
         )
+    return "\n".join(parts)
+
+
+def robustness_html(robustness: Robustness) -> str:
+    """The report page's robustness section: the summary, the U-test tables on robust
+    coverage and the figure (robustness.png beside the page)."""
+    esc = html.escape
+    parts = [f'<h2 id="robustness">Robustness</h2><p>{esc(EXPLAINED.replace("*", "").replace("`", ""))}</p>']
+    parts.append(summary_html(robustness))
+    for number, (perturbation, table) in enumerate(robustness_tables(robustness).items()):
+        parts.append(f"<h3>U-tests on robust coverage ({esc(perturbation)})</h3>")
+        parts.append(table.html(table_id=f"robustness-pvalues-{number}"))
+    caption = "What survives a change of body (against the factor), of program (the float path) and of episode start."
+    parts.append(
+        f'<figure id="robustness-figure"><img src="robustness.png" alt="{esc(caption)}" style="max-width: 100%">'
+        f'<figcaption>{esc(caption)} (<a href="robustness.pdf">PDF</a>)</figcaption></figure>'
+    )
     return "\n".join(parts)
 
 
@@ -232,15 +285,9 @@ def robustness_figure(robustness: Robustness) -> Figure:
     return figure
 
 
-def robustness_files(robustness: Robustness, relative_to: Path) -> dict[str, bytes]:
-    """Every file `smol-dsl robustness` writes, by name, in memory: robustness.csv (run
-    directories relative to `relative_to` where below it), .md, .tex, and the figure as PNG
-    and PDF."""
-    files = {
-        ROBUSTNESS_FILE: robustness_csv(robustness.rows, relative_to).encode(),
-        "robustness.md": robustness_markdown(robustness).encode(),
-        "robustness.tex": robustness_latex(robustness).encode(),
-    }
+def robustness_figure_and_tables(robustness: Robustness) -> dict[str, bytes]:
+    """robustness.tex (the U-test tables) and the figure as PNG and PDF, by name."""
+    files = {"robustness.tex": robustness_latex(robustness).encode()}
     figure = robustness_figure(robustness)
     for suffix in ("png", "pdf"):
         image = io.BytesIO()
@@ -249,21 +296,42 @@ def robustness_files(robustness: Robustness, relative_to: Path) -> dict[str, byt
     return files
 
 
-def robustness_for_report(path: Path, groups: Mapping[str, Sequence[object]], task: str) -> Robustness:
-    """robustness.csv at `path`, checked against the report's runs (`groups`: each
-    schedule's RunRecords): every run has its rows and no row is of another run."""
-    rows = read_robustness(path)
-    reported = {str(Path(run.directory).resolve()): (name, run) for name, runs in groups.items() for run in runs}  # type: ignore[attr-defined]
-    measured = {row.directory for row in rows}
-    missing = [directory for directory in reported if directory not in measured]
+def robustness_files(robustness: Robustness, relative_to: Path) -> dict[str, bytes]:
+    """Every file `smol-dsl robustness` writes, by name, in memory: robustness.csv (run
+    directories relative to `relative_to` where below it), .md, .tex, and the figure as PNG
+    and PDF."""
+    return {
+        ROBUSTNESS_FILE: robustness_csv(robustness.rows, relative_to).encode(),
+        "robustness.md": robustness_markdown(robustness).encode(),
+        **robustness_figure_and_tables(robustness),
+    }
+
+
+def robustness_for_report(paths: Sequence[Path], groups: Mapping[str, Sequence[RunRecord]], task: str) -> Robustness:
+    """The robustness.csv files at `paths`, checked against the report's runs (`groups`:
+    each schedule's runs): every run has its rows, in one file only; rows of other runs
+    are left out. A ReportError says what does not match and how to measure again."""
+    rows: list[RobustnessRow] = []
+    source: dict[str, Path] = {}
+    for path in paths:
+        if not Path(path).is_file():
+            raise ReportError(f"{path}: no such file; measure with `smol-dsl robustness DIR...` first")
+        read = read_robustness(Path(path))
+        for directory in dict.fromkeys(row.directory for row in read):
+            if directory in source:
+                raise ReportError(f"{directory} is measured in both {source[directory]} and {path}; keep one")
+            source[directory] = Path(path)
+        rows += read
+    reported = [str(Path(run.directory).resolve()) for runs in groups.values() for run in runs]
+    missing = [directory for directory in reported if directory not in source]
     if missing:
+        more = f" (nor of {len(missing) - 1} more run(s))" if len(missing) > 1 else ""
         raise ReportError(
-            f"{path} has no measurements of {missing[0]}"
-            + (f" (nor of {len(missing) - 1} more run(s))" if len(missing) > 1 else "")
-            + f"; measure again with `smol-dsl robustness DIR... -o {path.parent} --force` on the runs you report"
+            f"{', '.join(str(p) for p in paths)} has no measurements of {missing[0]}{more}: measure the runs you "
+            "report on again with `smol-dsl robustness DIR... --force`, or give --no-robustness"
         )
-    mine = [row for row in rows if row.directory in reported]
-    return robustness_of(mine, task, list(groups))
+    shown = set(reported)
+    return robustness_of([row for row in rows if row.directory in shown], task, list(groups))
 
 
 @dataclass(frozen=True)
