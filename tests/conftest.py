@@ -60,7 +60,7 @@ def pytest_configure(config: pytest.Config) -> None:
         settings.load_profile("fast-tier")
 
 
-COMPILING_FIXTURES = {"small_run", "small_result", "mixed_sweep", "walker", "cheetah"}
+COMPILING_FIXTURES = {"small_run", "small_result", "mixed_sweep", "walker", "cheetah", "robust_sweep"}
 """Fixtures that build and compile Brax tasks: a test that uses one is `slow`."""
 
 
@@ -78,6 +78,7 @@ SHARED_WORKERS = {
     "test_environment": "small-runs",
     "test_entry_points": "small-runs",
     "test_replay": "small-runs",
+    "test_robustness": "small-runs",
     "test_tasks": "brax-tasks",
     "test_body": "brax-tasks",
     "test_install": "builds",
