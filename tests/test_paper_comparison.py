@@ -155,21 +155,26 @@ def test_reproduce_plans_the_paper_s_eight_conditions(tmp_path, capsys):
     assert code == 2 and "the paper ran walker2d, halfcheetah, ant_omni, not 'hopper'" in err
 
 
-@pytest.mark.parametrize("out", [None, "elsewhere"])
-def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, monkeypatch, out):
+@pytest.mark.parametrize(("out", "robustness"), [(None, False), ("elsewhere", False), (None, True)])
+def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, monkeypatch, out, robustness):
     """The report reads the sweep's own output directory, --out's or the default."""
     from smol_dsl.cli import main
     from smol_dsl.cli import run as cli_run
     from smol_dsl.results import gaits
     from smol_dsl.results import report as results_report
+    from smol_dsl.results import robustness as results_robustness
     from smol_dsl.runner.replay import replay_elites
 
-    swept, reported, drawn = [], [], []
+    swept, reported, drawn, measured = [], [], [], []
 
     def start(self, plan, training, progress):
         swept.append(plan.out)
         final = {"evaluations": plan.config.evaluations, "reevaluations": 0}
         return [SimpleNamespace(seconds=1.0, final=final, config=plan.config)]
+
+    def measure_and_write(paths, out_dir, perturbations=None, **options):
+        assert not reported  # robustness.csv is written before the report reads it
+        measured.append((paths, out_dir, options["force"]))
 
     def write_report(paths, out_dir, **options):
         reported.append((paths, out_dir))
@@ -180,9 +185,10 @@ def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, mo
     monkeypatch.setattr(cli_run.Sweep, "start", start)
     monkeypatch.setattr(cli_run, "_draw_figures", lambda results: None)
     monkeypatch.setattr(results_report, "write_report", write_report)
+    monkeypatch.setattr(results_robustness, "measure_and_write", measure_and_write)
     monkeypatch.setattr(gaits, "gl_backend", lambda: "egl")  # MuJoCo can render: the report has gaits
     monkeypatch.chdir(tmp_path)
-    where = [] if out is None else ["--out", out]
+    where = ([] if out is None else ["--out", out]) + (["--robustness"] if robustness else [])
     assert main(["reproduce", "walker2d", "--seeds", "1", "--evals", "2688", "--no-progress", *where]) == 0
     printed = capsys.readouterr().out
     expected = Path(out) if out is not None else Path("runs") / "walker2d-reproduce"
@@ -190,3 +196,4 @@ def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, mo
     assert printed.splitlines()[0].startswith("done: 1 run of walker2d") and "(the table)" in printed
     assert drawn == [(1, replay_elites)]  # the best elite of each condition's median run, as `report` draws
     assert f"report: {expected / 'report'}" in printed
+    assert measured == ([([expected], expected, True)] if robustness else [])

@@ -37,6 +37,12 @@ def add_parsers(commands: argparse._SubParsersAction) -> None:
     )
     reproduce.add_argument("task", metavar="TASK", help=f"one of the paper's tasks: {', '.join(PAPER_TASKS)}")
     add_sweep_options(reproduce, seeds=PAPER_SEEDS)
+    reproduce.add_argument(
+        "--robustness",
+        action="store_true",
+        help="before the report, measure how much of every final archive survives a change of body, program "
+        "and start (`smol-dsl robustness` with its defaults), so that the report shows it",
+    )
     reproduce.set_defaults(handle=Reproduce().train, seed=None, preset=None)
 
 
@@ -45,6 +51,7 @@ class Reproduce(Sweep):
 
     command = "reproduce"
     gaits = 0  # elites of each condition's median run its report draws (`_gaits`)
+    robustness = False  # measure robustness before the report (--robustness)
 
     def train(self, args: argparse.Namespace) -> int:
         if args.task not in PAPER_TASKS:
@@ -57,6 +64,7 @@ class Reproduce(Sweep):
             args.preset = "quick" if common.devices(args)[0].platform == "cpu" else "paper"
         args.schedules = [condition.schedule for condition in PAPER_CONDITIONS]
         self.gaits = 0 if args.dry_run else self._gaits()
+        self.robustness = bool(args.robustness)
         return super().train(args)  # the report is written when the sweep has ended (`summary`)
 
     def _gaits(self) -> int:
@@ -93,6 +101,14 @@ class Reproduce(Sweep):
         from smol_dsl.runner.replay import replay_elites
 
         replay = replay_elites if self.gaits else None
+        if self.robustness:  # robustness.csv beside the runs: the report adds it
+            import sys
+
+            from smol_dsl.results.robustness import measure_and_write
+
+            measure_and_write(
+                [out], out, force=True, progress=lambda line: print(f"robustness: {line}", file=sys.stderr, flush=True)
+            )
         written = results_report.write_report([out], out / "report", force=True, gaits=self.gaits, replay=replay)
         lines = [f"{written.table.task}, final {written.table.metric}:\n\n{written.table.markdown()}"]
         if written.comparison is not None:
