@@ -290,3 +290,19 @@ def test_the_u_tests_compare_robust_coverage_per_perturbation():
     table = robustness_tables(robustness_of(rows, "walker2d", ["SMOL", "Vanilla MAP-Elites"]))["body gear"]
     assert table.medians == {"SMOL": 52.0, "Vanilla MAP-Elites": 12.0}
     assert table.pvalues["Vanilla MAP-Elites"]["SMOL"] == pytest.approx(1 / 252)  # every SMOL run above
+
+
+def test_one_scoring_program_serves_every_factor_and_start(measured, robust_sweep):
+    """The body and the start are traced inputs: after three factors and two starts, the
+    training program has compiled once (and the float path's program once)."""
+    from smol_dsl.runner.engine import shared_engine
+    from smol_dsl.runner.robustness import _float_path_engine, scoring_programs
+
+    runs = [read_run(p) for p in sorted(robust_sweep.glob("walker2d-*"))]
+    (program,) = scoring_programs(runs)
+    assert len(program.passes) == 1 and program.runs == len(runs)  # the sweep's runs together, as they trained
+    engine = shared_engine(
+        program.config.task, program.config, program.devices, program.runs_per_step, program.runs, program.channels
+    )
+    assert engine._scores._cache_size() == 1
+    assert _float_path_engine(program)._scores._cache_size() == 1
