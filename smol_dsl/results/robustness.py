@@ -124,11 +124,15 @@ def _median_iqr(values: np.ndarray) -> str:
 def summary_rows(robustness: Robustness) -> tuple[list[str], list[list[str]]]:
     """The summary's header and rows: per schedule its runs, cells filled, and per
     perturbation the median [IQR] over seeds of the share of elites kept in their cell
-    (averaged over the samples) and of the robust coverage."""
+    (averaged over the samples), of the robust coverage and of the robust max fitness."""
     perturbations = robustness.perturbations
     header = ["schedule", "runs", "cells filled"]
     for perturbation in perturbations:
-        header += [f"{perturbation}: kept %", f"{perturbation}: robust coverage %"]
+        header += [
+            f"{perturbation}: kept %",
+            f"{perturbation}: robust coverage %",
+            f"{perturbation}: robust max fitness",
+        ]
     rows = []
     for name in robustness.schedules:
         cells = robustness.per_run(perturbations[0], MEDIAN, "cells")[name]
@@ -136,6 +140,7 @@ def summary_rows(robustness: Robustness) -> tuple[list[str], list[list[str]]]:
         for perturbation in perturbations:
             row.append(_median_iqr(_mean_over_samples(robustness, perturbation, name)))
             row.append(_median_iqr(robustness.per_run(perturbation, MEDIAN, "coverage")[name]))
+            row.append(_median_iqr(robustness.per_run(perturbation, MEDIAN, "max_fitness")[name]))
         rows.append(row)
     return header, rows
 
@@ -183,8 +188,8 @@ EXPLAINED = (
     "Every final archive re-scored under each perturbation's samples into a fresh archive on its centroids "
     "(`smol-dsl robustness`). *kept %*: elites that kept their own cell, in % of the cells filled before (mean "
     "over the samples); *robust coverage %*: the coverage of the corrected archive, each elite at its median "
-    "fitness and descriptor over the samples (QDax's `reevaluation_function`). Median [25th, 75th percentile] "
-    "over seeds."
+    "fitness and descriptor over the samples (QDax's `reevaluation_function`), and *robust max fitness* its best "
+    "fitness. Median [25th, 75th percentile] over seeds."
 )
 
 
