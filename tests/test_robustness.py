@@ -68,7 +68,7 @@ def test_the_command_writes_its_csv_table_and_figure(measured):
         assert row.kept + row.moved + row.collided + row.died == row.cells
         assert row.coverage == pytest.approx(100 * row.filled / CONFIG.num_centroids)
     table = (out / "robustness.md").read_text()
-    assert "U-tests on robust coverage (body gear)" in table and "Vanilla MAP-Elites" in table and "SMOL" in table
+    assert "U-tests on the robust coverage (body gear)" in table and "Vanilla MAP-Elites" in table and "SMOL" in table
     assert "\\begin{tabular}" in (out / "robustness.tex").read_text()
     figure = Image.open(out / "robustness.png")
     assert figure.size[0] > 500 and np.asarray(figure.convert("L")).std() > 10
@@ -107,7 +107,8 @@ def test_the_report_adds_robust_coverage_its_u_tests_and_the_figure(measured, ro
     )
     assert code == 0, err
     table = (report / "table.md").read_text()
-    assert "U-tests on robust coverage (body gear)" in table and "elites kept in their cell" in table
+    assert "U-tests on the robust coverage (body gear)" in table and "elites kept in their cell" in table
+    assert "U-tests on the share of elites kept in their cell (starts)" in table
     header = next(csv.reader(io.StringIO((report / "scores.csv").read_text())))
     assert [name for name in header if name.startswith("robust")] == [
         "robust coverage (body gear)",
@@ -280,16 +281,23 @@ def test_reinsertion_is_qdax_s_collisions_keep_the_best():
     assert best.tolist() == [-np.inf, 5.0, -np.inf] and holder[1] == 0
 
 
-def test_the_u_tests_compare_robust_coverage_per_perturbation():
-    def row(schedule, seed, coverage):
-        return RobustnessRow(
-            f"{schedule}{seed}", schedule, seed, "body gear", MEDIAN, math.nan, 10, 5, 5, 0, 5, 0, coverage, 1.0
-        )
+def test_the_u_tests_compare_robust_coverage_and_kept_shares_per_perturbation():
+    def rows(schedule, seed, coverage, kept):
+        common = (f"{schedule}{seed}", schedule, seed, "body gear")
+        return [
+            RobustnessRow(*common, "x1.1", 1.1, 10, kept, kept, 0, 10 - kept, 0, 3.0 * kept, 1.0),
+            RobustnessRow(*common, MEDIAN, math.nan, 10, 5, 5, 0, 5, 0, coverage, 1.0),
+        ]
 
-    rows = [row("SMOL", s, 50.0 + s) for s in range(5)] + [row("Vanilla MAP-Elites", s, 10.0 + s) for s in range(5)]
-    table = robustness_tables(robustness_of(rows, "walker2d", ["SMOL", "Vanilla MAP-Elites"]))["body gear"]
-    assert table.medians == {"SMOL": 52.0, "Vanilla MAP-Elites": 12.0}
-    assert table.pvalues["Vanilla MAP-Elites"]["SMOL"] == pytest.approx(1 / 252)  # every SMOL run above
+    # SMOL: more robust coverage, Vanilla: a larger share kept
+    measured = [r for s in range(5) for r in rows("SMOL", s, 50.0 + s, 2)]
+    measured += [r for s in range(5) for r in rows("Vanilla MAP-Elites", s, 10.0 + s, 8)]
+    tables = robustness_tables(robustness_of(measured, "walker2d", ["SMOL", "Vanilla MAP-Elites"]))
+    coverage, kept = tables["body gear", "robust coverage"], tables["body gear", "kept %"]
+    assert coverage.medians == {"SMOL": 52.0, "Vanilla MAP-Elites": 12.0}
+    assert coverage.pvalues["Vanilla MAP-Elites"]["SMOL"] == pytest.approx(1 / 252)  # every SMOL run above
+    assert kept.medians == {"SMOL": 20.0, "Vanilla MAP-Elites": 80.0}
+    assert kept.pvalues["Vanilla MAP-Elites"]["SMOL"] > 0.99
 
 
 def test_one_scoring_program_serves_every_factor_and_start(measured, robust_sweep):

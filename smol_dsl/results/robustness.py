@@ -1,8 +1,9 @@
 """What `smol-dsl robustness` writes from its measurements (robustness.csv's rows): per
 schedule, over seeds, how much of a final archive survives each perturbation, as a table
-with one-sided U-tests on robust coverage (`robustness_tables`, Markdown and LaTeX), a
-figure of survival against the body factor (`robustness_figure`), and the section the
-report adds (`report_section`). Drawn from plain rows: nothing here imports JAX.
+with one-sided U-tests on robust coverage and on the share of elites kept in their cell
+(`robustness_tables`, Markdown and LaTeX), a figure of survival against the body factor
+(`robustness_figure`), and the section the report adds (`robustness_markdown`,
+`robustness_html`). Drawn from plain rows: nothing here imports JAX.
 """
 
 from __future__ import annotations
@@ -96,16 +97,33 @@ def robustness_of(rows: Sequence[RobustnessRow], task: str, order: Sequence[str]
     return Robustness(task, list(rows), names)
 
 
-def robustness_tables(robustness: Robustness) -> dict[str, PValueTable]:
-    """Per perturbation, the one-sided U-tests of "column's robust coverage is higher than
-    the row's" (the coverage of each run's corrected archive: `MEDIAN` rows), in the
-    layout of the report's table."""
-    return {
-        perturbation: score_table(
-            robustness.task, f"robust coverage ({perturbation})", robustness.per_run(perturbation, MEDIAN, "coverage")
-        )
-        for perturbation in robustness.perturbations
-    }
+TESTED = (
+    ("robust coverage", "robust coverage", "the column schedule's robust coverage is higher than the row's"),
+    ("kept %", "share of elites kept in their cell", "a larger share of the column schedule's elites keeps its cell"),
+)
+"""What the U-tests compare, per perturbation: (short name, in words, the alternative)."""
+
+
+def robustness_tables(robustness: Robustness) -> dict[tuple[str, str], PValueTable]:
+    """Per perturbation and score of TESTED, the one-sided U-tests of "the column's is
+    higher than the row's", in the layout of the report's table: on robust coverage (the
+    coverage of each run's corrected archive: `MEDIAN` rows), and on the share of its
+    elites that kept their cell (each run's mean over the samples; a share of the archive,
+    so a smaller archive is not counted against it)."""
+    tables = {}
+    for perturbation in robustness.perturbations:
+        for name, _, _ in TESTED:
+            if name == "robust coverage":
+                scores = robustness.per_run(perturbation, MEDIAN, "coverage")
+            else:
+                scores = {s: _mean_over_samples(robustness, perturbation, s) for s in robustness.schedules}
+            tables[perturbation, name] = score_table(robustness.task, f"{name} ({perturbation})", scores)
+    return tables
+
+
+def _tested(name: str) -> tuple[str, str]:
+    """A tested score's words and alternative (`TESTED`)."""
+    return next((words, alternative) for short, words, alternative in TESTED if short == name)
 
 
 def _quartiles(values: np.ndarray) -> tuple[float, float, float]:
@@ -205,24 +223,28 @@ def robustness_markdown(robustness: Robustness, level: int = 1) -> str:
                 f"{sub} {perturbation}: elites kept in their cell (%), per factor\n",
                 body_markdown(robustness, perturbation),
             ]
-    for perturbation, table in robustness_tables(robustness).items():
+    for (perturbation, name), table in robustness_tables(robustness).items():
+        words, alternative = _tested(name)
         notes = "".join(f"\n- note: {note}" for note in table.notes())
         parts.append(
-            f'{sub} U-tests on robust coverage ({perturbation})\n\nOne-sided Mann-Whitney U: p-value of "the '
-            f"column schedule's robust coverage is higher than the row's\"; p < {SIGNIFICANCE} in bold.\n\n"
-            f"{table.markdown()}{notes}\n"
+            f'{sub} U-tests on the {words} ({perturbation})\n\nOne-sided Mann-Whitney U: p-value of "{alternative}"; '
+            f"p < {SIGNIFICANCE} in bold.\n\n{table.markdown()}{notes}\n"
         )
     return "\n".join(parts)
 
 
 def robustness_html(robustness: Robustness) -> str:
-    """The report page's robustness section: the summary, the U-test tables on robust
-    coverage and the figure (robustness.png beside the page)."""
+    """The report page's robustness section: the summary, the U-test tables and the figure
+    (robustness.png beside the page)."""
     esc = html.escape
     parts = [f'<h2 id="robustness">Robustness</h2><p>{esc(EXPLAINED.replace("*", "").replace("`", ""))}</p>']
     parts.append(summary_html(robustness))
-    for number, (perturbation, table) in enumerate(robustness_tables(robustness).items()):
-        parts.append(f"<h3>U-tests on robust coverage ({esc(perturbation)})</h3>")
+    for number, ((perturbation, name), table) in enumerate(robustness_tables(robustness).items()):
+        words, alternative = _tested(name)
+        parts.append(
+            f"<h3>U-tests on the {esc(words)} ({esc(perturbation)})</h3>"
+            f"<p>p-value of &ldquo;{esc(alternative)}&rdquo;</p>"
+        )
         parts.append(table.html(table_id=f"robustness-pvalues-{number}"))
     caption = "What survives a change of body (against the factor), of program (the float path) and of episode start."
     parts.append(
@@ -233,12 +255,11 @@ def robustness_html(robustness: Robustness) -> str:
 
 
 def robustness_latex(robustness: Robustness) -> str:
-    """robustness.tex: the U-test tables on robust coverage, one per perturbation."""
+    """robustness.tex: the U-test tables, one per perturbation and tested score."""
     out = []
-    for perturbation, table in robustness_tables(robustness).items():
-        out.append(
-            f"% {robustness.task}: robust coverage ({latex_escape(perturbation)}), one-sided U-tests\n{table.latex()}"
-        )
+    for (perturbation, name), table in robustness_tables(robustness).items():
+        words, _ = _tested(name)
+        out.append(f"% {robustness.task}: {words} ({latex_escape(perturbation)}), one-sided U-tests\n{table.latex()}")
     return "\n".join(out)
 
 
