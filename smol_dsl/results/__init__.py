@@ -9,7 +9,10 @@ and report, and every figure.
   tests;
 - `paper`: that table beside the paper's (paper_table.json);
 - `report`: `write_report(paths, out_dir)` writes the table with the figures and
-  `page`'s index.html (`smol-dsl report`);
+  `page`'s index.html (`smol-dsl report`), into a directory `output` checks and writes;
+- `robustness`: `measure_and_write(paths, out_dir)` re-scores final archives under
+  perturbations (`smol_dsl.runner.robustness`) and writes robustness.csv, its tables with
+  U-tests and its figure (`smol-dsl robustness`), which the report adds to its own;
 - `figures`: what every figure shares (line styles, legends, `save_figure`);
 - `run_figures`: `save_run_figures(directory)` draws a finished run directory's metrics.png
   and archive.png from its files, and is what the CLI calls after `run` and `sweep` have

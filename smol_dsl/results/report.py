@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from smol_dsl.results.conditions import ABLATIONS
+from smol_dsl.results.output import check_writable_directory, write_files
 from smol_dsl.results.page import index_page
 from smol_dsl.results.paper import compare_with_paper
 from smol_dsl.results.report_figures import archives_figure, reevaluation_figure, results_figure
@@ -33,7 +34,6 @@ from smol_dsl.results.robustness import (
 from smol_dsl.results.runs import METRICS, ReportError, environment_mixing, load_runs, median_run, runs_described
 from smol_dsl.results.statistics import SIGNIFICANCE, PValueTable, markdown_escape, pvalue_table
 from smol_dsl.rundir import CONFIG_FILE, METRICS_FILE, METRICS_SCHEMA, ROBUSTNESS_FILE, RunRecord, is_run_directory
-from smol_dsl.rundir.files import write_together
 from smol_dsl.tasks import descriptor_bounds
 
 if TYPE_CHECKING:
@@ -98,23 +98,7 @@ def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str
             f"{out} is a run directory (it holds a run's {CONFIG_FILE} or {METRICS_FILE}); a report goes into "
             "a directory of its own: give another -o"
         )
-    if out.exists() and not out.is_dir():
-        raise ReportError(
-            f"{out} is a file, not a directory: the report is several files (table.md, pvalues.tex, scores.csv, "
-            "figures) and -o names the directory they go into; give another -o"
-        )
-    existing = out
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ReportError(f"cannot create {out}: {existing} is a file, not a directory; give another -o")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ReportError(f"cannot write into {existing} (permission denied); give another -o")
-    blocked = [name for name in REPORT_FILES if (out / name).is_dir()]
-    if blocked:
-        raise ReportError(
-            f"{out / blocked[0]} is a directory, where the report writes a file; move it, or give another -o"
-        )
+    check_writable_directory(out, REPORT_FILES, "the report")
     earlier = earlier_report(out)
     if earlier and not force:
         raise ReportError(
@@ -246,25 +230,6 @@ def gait_files(
         caption = f"{name}, median run (seed {run.seed}) by {metric.replace('_', ' ')}, final body: {described}"
         shown.append((f"gaits-{index:02d}-{slug}.gif", gif_bytes(drawn), caption))
     return shown
-
-
-def write_files(out_dir: str | Path, files: dict[str, bytes], remove: Sequence[str] = ()) -> list[Path]:
-    """Write files into out_dir (made if need be), together and atomically
-    (`smol_dsl.rundir.files.write_together`), then remove the files named in `remove`."""
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise ReportError(f"cannot create {out} ({error.strerror or error}); give another -o") from None
-    try:
-        written = write_together(out, files)
-        for name in remove:
-            (out / name).unlink(missing_ok=True)
-    except OSError as error:
-        raise ReportError(
-            f"cannot write {error.filename} ({error.strerror or error}); free some space or give another -o"
-        ) from None
-    return written
 
 
 def robustness_files_of(

@@ -11,7 +11,6 @@ from __future__ import annotations
 import html
 import io
 import math
-import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, MaxNLocator
 
 from smol_dsl.results.figures import legend_label, place_legend
+from smol_dsl.results.output import check_writable_directory, write_files
 from smol_dsl.results.report_figures import schedule_styles
 from smol_dsl.results.runs import ReportError
 from smol_dsl.results.statistics import SIGNIFICANCE, PValueTable, latex_escape, markdown_escape, score_table
@@ -371,19 +371,7 @@ class RobustnessReport:
 def check_robustness_output(out_dir: str | Path, force: bool = False) -> list[str]:
     """Refuse (ReportError) an output directory that is a file, cannot be made or written,
     or holds earlier robustness files (unless `force`); returns those files."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ReportError(f"{out} is a file, not a directory: -o names the directory robustness.csv goes into")
-    existing = out
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ReportError(f"cannot create {out}: {existing} is a file, not a directory; give another -o")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ReportError(f"cannot write into {existing} (permission denied); give another -o")
-    blocked = [name for name in ROBUSTNESS_FILES if (out / name).is_dir()]
-    if blocked:
-        raise ReportError(f"{out / blocked[0]} is a directory, where a file goes; move it, or give another -o")
+    out = check_writable_directory(out_dir, ROBUSTNESS_FILES, "smol-dsl robustness")
     earlier = [name for name in ROBUSTNESS_FILES if (out / name).is_file()]
     if earlier and not force:
         raise ReportError(
@@ -407,7 +395,6 @@ def measure_and_write(
     `out_dir`, together and atomically. Everything is checked before anything is measured
     (the output directory, the runs as `report` checks them, the perturbations), and
     measured before anything is written."""
-    from smol_dsl.results.report import write_files
     from smol_dsl.results.runs import load_runs
     from smol_dsl.runner.robustness import Perturbations, check_perturbations, measure_robustness
 
