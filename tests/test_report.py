@@ -24,7 +24,7 @@ from synthetic_runs import SEEDS, loaded_modules, many_schedules, refused, snaps
 
 import smol_dsl
 from smol_dsl.cli import main
-from smol_dsl.results.report import REPORT_FILES, write_report
+from smol_dsl.results.report import REPORT_FILES, ROBUSTNESS_REPORT_FILES, write_report
 from smol_dsl.results.runs import ReportError, load_runs
 from smol_dsl.results.statistics import pvalue_table
 from smol_dsl.rundir import MetricsLog, read_metrics
@@ -558,7 +558,8 @@ def test_report_of_many_schedules_without_warnings(tmp_path, capsys):
         assert main(["report", str(tmp_path / "runs"), "-o", str(tmp_path / "out"), "--no-gaits"]) == 0
     err = capsys.readouterr().err
     assert all(line.startswith("note: ") for line in err.splitlines()), err
-    assert set(REPORT_FILES) - {"ablation-results.png", "ablation-results.pdf"} == {
+    without = {"ablation-results.png", "ablation-results.pdf", *ROBUSTNESS_REPORT_FILES}  # no ablations, robustness
+    assert set(REPORT_FILES) - without == {
         p.name for p in (tmp_path / "out").iterdir()
     }
 

@@ -1,0 +1,83 @@
+"""phases.npz: a run's archive at every phase's start and end, without its policies, so that
+what each change of body did to the archive (the collapse at a boundary, the refill after
+it) can be seen after the run (`smol-dsl explore`, the report's maps).
+
+A snapshot is every cell's fitness (-inf where empty) and descriptor, taken after the
+initial population and after each boundary's re-evaluation (`START`: the phase's first
+archive) and before each boundary and at the end of training (`END`: the phase's last).
+The runner rewrites the file atomically at every boundary (`write_snapshots`); on resume it
+keeps the snapshots up to the checkpoint's generation (`snapshots_until`), so that a
+resumed run writes the file an uninterrupted one writes, bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from smol_dsl.rundir.files import write_npz
+from smol_dsl.rundir.layout import SNAPSHOTS_FILE, RunDirectoryError
+
+START, END = 0, 1
+"""A snapshot's `moment` in its phase: its first archive (after the initial population or
+the boundary's re-evaluation) or its last (before the next boundary, or the final archive)."""
+SNAPSHOT_ARRAYS = ("generation", "phase", "moment", "fitnesses", "descriptors")
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One run's archive at a moment of a phase: (C,) fitnesses, (C, D) descriptors."""
+
+    generation: int  # generations trained when it was taken
+    phase: int
+    moment: int  # START or END
+    fitnesses: np.ndarray
+    descriptors: np.ndarray
+
+    @property
+    def filled(self) -> np.ndarray:
+        return self.fitnesses > -np.inf
+
+
+def write_snapshots(directory: Path, snapshots: Sequence[Snapshot]) -> None:
+    """Write phases.npz into a run directory (atomically), every snapshot in order."""
+    write_npz(
+        Path(directory) / SNAPSHOTS_FILE,
+        {
+            "generation": np.asarray([s.generation for s in snapshots], dtype=np.int64),
+            "phase": np.asarray([s.phase for s in snapshots], dtype=np.int32),
+            "moment": np.asarray([s.moment for s in snapshots], dtype=np.int8),
+            "fitnesses": np.stack([np.asarray(s.fitnesses, np.float32) for s in snapshots]),
+            "descriptors": np.stack([np.asarray(s.descriptors, np.float32) for s in snapshots]),
+        },
+    )
+
+
+def read_snapshots(directory: Path) -> list[Snapshot]:
+    """A run directory's phases.npz, in order ([] where there is none); a damaged one is a
+    RunDirectoryError naming it."""
+    path = Path(directory) / SNAPSHOTS_FILE
+    if not path.is_file():
+        return []
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: np.asarray(data[name]) for name in SNAPSHOT_ARRAYS}
+    except (OSError, ValueError, KeyError) as error:
+        raise RunDirectoryError(f"{path}: cannot be read ({error}); remove it, or rerun the run") from None
+    count = len(arrays["generation"])
+    if any(len(values) != count for values in arrays.values()) or arrays["descriptors"].ndim != 3:
+        raise RunDirectoryError(f"{path}: its arrays do not agree in length or shape; remove it, or rerun the run")
+    return [
+        Snapshot(int(g), int(p), int(m), f, d)
+        for g, p, m, f, d in zip(*(arrays[name] for name in SNAPSHOT_ARRAYS), strict=True)
+    ]
+
+
+def snapshots_until(snapshots: Sequence[Snapshot], generation: int) -> list[Snapshot]:
+    """The snapshots taken by `generation` (a checkpoint's): what a run resumed from it has
+    written already; later ones (written before an interruption that lost their checkpoint)
+    are taken again."""
+    return [snapshot for snapshot in snapshots if snapshot.generation <= generation]
