@@ -559,9 +559,7 @@ def test_report_of_many_schedules_without_warnings(tmp_path, capsys):
     err = capsys.readouterr().err
     assert all(line.startswith("note: ") for line in err.splitlines()), err
     without = {"ablation-results.png", "ablation-results.pdf", *ROBUSTNESS_REPORT_FILES}  # no ablations, robustness
-    assert set(REPORT_FILES) - without == {
-        p.name for p in (tmp_path / "out").iterdir()
-    }
+    assert set(REPORT_FILES) - without == {p.name for p in (tmp_path / "out").iterdir()}
 
 
 def test_names_with_table_and_latex_characters(tmp_path, capsys):

@@ -136,7 +136,7 @@ def test_a_finished_run_resumed_trains_nothing_and_changes_nothing(task, library
     is made (no rollout can run), metrics.csv and archive.npz stay as they were."""
     out = tmp_path / "finished"
     shutil.copytree(human_run.out_dir, out)
-    before = {name: (out / name).read_bytes() for name in ("metrics.csv", "archive.npz")}
+    before = {name: (out / name).read_bytes() for name in ("metrics.csv", "archive.npz", "phases.npz")}
     monkeypatch.setattr(type(task), "episode_start", lambda self, seed: pytest.fail("a finished run made rollouts"))
     resumed = run_experiment(task, library["human"], small_config(), out_dir=out, resume=True)
     assert resumed.metrics == human_run.metrics
@@ -154,6 +154,7 @@ def test_resume_after_interruption_matches_an_uninterrupted_run(task, library, h
     resumed = run_experiment(task, library["human"], small_config(), out_dir=out, resume=True)
     assert resumed.metrics == human_run.metrics
     assert (out / "metrics.csv").read_text() == (human_run.out_dir / "metrics.csv").read_text()
+    assert (out / "phases.npz").read_bytes() == (human_run.out_dir / "phases.npz").read_bytes()
     ours, theirs = np.load(out / "archive.npz"), np.load(human_run.out_dir / "archive.npz")
     assert sorted(ours.files) == sorted(theirs.files)
     for name in ours.files:
@@ -382,6 +383,7 @@ def test_kill_9_then_resume_equals_uninterrupted_run(human_run, tmp_path):
     assert "not actively being maintained" not in err and not (tmp_path / "MUJOCO_LOG.TXT").exists()
     assert all((tmp_path / "killed" / name).is_file() for name in ("metrics.png", "archive.png"))  # the CLI drew them
     assert (tmp_path / "killed" / "metrics.csv").read_text() == (human_run.out_dir / "metrics.csv").read_text()
+    assert (tmp_path / "killed" / "phases.npz").read_bytes() == (human_run.out_dir / "phases.npz").read_bytes()
     ours, theirs = np.load(tmp_path / "killed" / "archive.npz"), np.load(human_run.out_dir / "archive.npz")
     for name in theirs.files:
         np.testing.assert_array_equal(ours[name], theirs[name])
@@ -414,3 +416,32 @@ def test_cli_refuses_to_overwrite(tmp_path, monkeypatch, capsys):
     assert code == 2 and "already exists" in err
     assert (tmp_path / "taken" / "something").read_text() == "precious"
     assert os.listdir(tmp_path / "taken") == ["something"]
+
+
+@pytest.mark.slow
+def test_phase_snapshots_are_the_archive_at_each_phase_s_start_and_end(human_run):
+    """phases.npz holds the archive after the initial population, before and after every
+    boundary's re-evaluation and at the end: their coverage is metrics.csv's at those rows,
+    the last is the final archive, and none holds policies."""
+    from smol_dsl.rundir.snapshots import END, START, read_snapshots
+
+    config = small_config()
+    snapshots = read_snapshots(human_run.out_dir)
+    assert [(s.phase, s.moment) for s in snapshots] == [
+        (phase, moment) for phase in range(config.num_phases) for moment in (START, END)
+    ]
+    rows = human_run.metrics
+    by_generation = {}
+    for row in rows:  # a boundary's reevaluate row follows the phase's last train row
+        by_generation.setdefault(row["generation"], []).append(row)
+    for snapshot in snapshots:
+        at = by_generation[snapshot.generation]
+        row = at[0] if snapshot.moment == END or snapshot.generation == 0 else at[-1]
+        if snapshot.moment == START and snapshot.generation > 0:
+            assert row["event"] == "reevaluate"
+        coverage = 100 * snapshot.filled.sum() / config.num_centroids
+        assert coverage == pytest.approx(row["coverage"]), snapshot
+    final = np.load(human_run.out_dir / "archive.npz")
+    np.testing.assert_array_equal(snapshots[-1].fitnesses, final["fitnesses"])
+    np.testing.assert_array_equal(snapshots[-1].descriptors, final["descriptors"])
+    assert not [name for name in np.load(human_run.out_dir / "phases.npz").files if "genotypes" in name]

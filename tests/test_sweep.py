@@ -185,6 +185,8 @@ def test_cli_sweep_killed_then_resumed_equals_uninterrupted(sweep, tmp_path):
         np.testing.assert_array_equal(archive.descriptors, whole.descriptors)
         metrics = (out / result.out_dir.name / "metrics.csv").read_text()
         assert metrics == (result.out_dir / "metrics.csv").read_text()
+        phases = (out / result.out_dir.name / "phases.npz").read_bytes()
+        assert phases == (result.out_dir / "phases.npz").read_bytes()  # every phase's snapshots, bit for bit
 
 
 @pytest.mark.parametrize(

@@ -24,6 +24,7 @@ CERTIFICATE_TEXT_FILE = "certificate.txt"
 METRICS_FILE = "metrics.csv"
 CHECKPOINT_FILE = "checkpoint.npz"
 ARCHIVE_FILE = "archive.npz"
+SNAPSHOTS_FILE = "phases.npz"
 METRICS_FIGURE = "metrics.png"
 ARCHIVE_FIGURE = "archive.png"
 LOCK_FILE = ".smol-dsl.lock"
@@ -53,6 +54,12 @@ FILES = (
         "the final archive: `genotypes/<parameter path>` (C, ...), `fitnesses` (C,), `descriptors` (C, D), "
         "`centroids` (C, D), `filled` (C,), `lanes` (C,): each elite's position in the batch it was scored in; "
         "an empty cell's fitness is −inf",
+    ),
+    (
+        SNAPSHOTS_FILE,
+        "the archive at every phase's start (after the initial population or the boundary's re-evaluation) and "
+        "end (before the next boundary, and the final archive), without policies: `generation`, `phase`, `moment` "
+        "(0 start, 1 end) (S,), `fitnesses` (S, C), `descriptors` (S, C, D); rewritten at every boundary",
     ),
     (METRICS_FIGURE, "max fitness, coverage, QD score and every scheduled channel's factor over training evaluations"),
     (

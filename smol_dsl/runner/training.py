@@ -3,7 +3,8 @@
 `train` is what `run_experiment` (one run) and `run_sweep` (many) both do once their
 directories are set up. The algorithm is `smol_dsl.runner.core`'s (pure functions on one
 state of every run); `HostLoop` sequences them and does every side effect: each run's
-metrics.csv rows and the progress after every step, a checkpoint handed to the background
+metrics.csv rows and the progress after every step, its archive's snapshots at every phase's
+start and end (phases.npz, rewritten at each boundary), a checkpoint handed to the background
 writer right after each phase boundary (so an interrupted training resumes from its last
 boundary and ends with exactly the archives and metrics of an uninterrupted one), and at
 the end the runs' results and final archives. The next boundary waits for the write in
@@ -32,6 +33,7 @@ from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.qdax.phases import phase_of_generation
 from smol_dsl.rundir import CHECKPOINT_FILE, MetricsLog
 from smol_dsl.rundir.checkpoint import RunState, checkpoint_contents
+from smol_dsl.rundir.snapshots import END, START, Snapshot, read_snapshots, snapshots_until, write_snapshots
 from smol_dsl.runner.checkpoint import (
     CheckpointWriter,
     archive_arrays,
@@ -175,6 +177,7 @@ class HostLoop:
             course.bodies[r][:, [channels.index(c) for c in run.schedule.channels]] for r, run in enumerate(runs)
         ]
         self.rows: list[list[dict[str, Any]]] = [[] for _ in runs]
+        self.snapshots: list[list[Snapshot]] = [[] for _ in runs]
         self.logs: list[MetricsLog] = []
         self.was_finished = False  # resumed from the checkpoint of a finished training
 
@@ -194,9 +197,15 @@ class HostLoop:
         population's row (then checkpointed)."""
         if saved_rows is not None:
             self.rows = [list(rows) for rows in saved_rows]
+            self.snapshots = [
+                snapshots_until(read_snapshots(run.directory), state.generation) if run.directory is not None else []
+                for run in self.runs
+            ]
         else:
             assert first is not None
             self.rows = [[self.row(state, first, r)] for r in range(len(self.runs))]
+            self.snapshot(state, START)
+            self.write_snapshots()
             if self.checkpoint is not None:
                 save_checkpoint(self.checkpoint, state.repertoires, state.keys, self.run_states(state), self.owner)
         self.logs = [
@@ -230,6 +239,20 @@ class HostLoop:
             rows.append(row)
             log.append(row)
         self.show()
+
+    def snapshot(self, state: TrainingState, moment: int) -> None:
+        """Every run's archive as it is now (its fitnesses and descriptors, to the host), a
+        snapshot of `moment` (`START` or `END`) of the current phase."""
+        fitnesses, descriptors = jax.device_get((state.repertoires.fitnesses, state.repertoires.descriptors))
+        for r, snapshots in enumerate(self.snapshots):
+            cells = np.asarray(fitnesses[r]).reshape(self.config.num_centroids)
+            snapshots.append(Snapshot(state.generation, state.phase, moment, cells, np.asarray(descriptors[r])))
+
+    def write_snapshots(self) -> None:
+        """Every run's phases.npz, with the snapshots taken so far."""
+        for run, snapshots in zip(self.runs, self.snapshots, strict=True):
+            if run.directory is not None:
+                write_snapshots(run.directory, snapshots)
 
     def show(self) -> None:
         if self.progress is not None:
@@ -282,8 +305,11 @@ class HostLoop:
                     # the last checkpoint's host copy is let go before the archives are held
                     # twice, so that memory never holds both (the sizing counts on it)
                     writer.flush()
+                    self.snapshot(state, END)
                     state, outcome = cross_boundary(engine, course, state, phase)
                     self.record(state, outcome)
+                    self.snapshot(state, START)
+                    self.write_snapshots()
                     if self.checkpoint is not None:
                         states = self.run_states(state)
                         arrays = partial(checkpoint_arrays, state.repertoires, state.keys, states, self.owner)
@@ -300,6 +326,10 @@ class HostLoop:
         checkpoint)."""
         finished = state.generation >= self.config.generations
         newly_finished = finished and not self.was_finished
+        last = self.snapshots[0][-1] if self.snapshots[0] else None
+        if finished and (last is None or (last.moment, last.generation) != (END, state.generation)):
+            self.snapshot(state, END)  # the final archive
+            self.write_snapshots()
         run_checkpoints = {run.directory / CHECKPOINT_FILE for run in self.runs if run.directory is not None}
         states = self.run_states(state, finished=finished or self.was_finished)
         if newly_finished and self.checkpoint is not None and self.checkpoint not in run_checkpoints:
