@@ -41,10 +41,13 @@ class PageVisit:
     images: list[dict] = field(default_factory=list)
     has_table: bool = False
     screenshot: bytes = b""
+    result: object = None  # what `script` returned
 
 
-def visit(page: Path, timeout: float = 60.0) -> PageVisit:
-    """Load `page` (a file) in a fresh headless Chromium and report what happened."""
+def visit(page: Path, timeout: float = 60.0, script: str | None = None) -> PageVisit:
+    """Load `page` (a file) in a fresh headless Chromium and report what happened; `script`,
+    an expression (a promise is awaited), is evaluated once the page has loaded, before its
+    images are read, and its JSON-able value kept as `result`."""
     from websockets.sync.client import connect
 
     profile = Path(tempfile.mkdtemp(prefix="chromium-"))
@@ -102,6 +105,9 @@ def visit(page: Path, timeout: float = 60.0) -> PageVisit:
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"{page} did not finish loading")
                 record(json.loads(socket.recv(timeout=timeout)))
+            if script is not None:
+                done = send("Runtime.evaluate", session, expression=script, awaitPromise=True, returnByValue=True)
+                visit.result = done["result"].get("value")
             evaluated = send("Runtime.evaluate", session, expression=IMAGES, returnByValue=True)
             visit.images = json.loads(evaluated["result"]["value"])
             table = send(

@@ -27,7 +27,7 @@ def test_the_report_writes_a_page_and_each_schedule_s_gaits(report_dir):
     image = Image.open(gifs[0])
     assert image.size[0] == 2 * 320 and image.n_frames >= 2  # two elites side by side
     page = (report_dir / "index.html").read_text()
-    assert "<script" not in page and "http" not in page.replace('href="table.md"', "")
+    assert "<script src" not in page and "http" not in page.replace('href="table.md"', "")  # no outside script
 
 
 def test_the_page_says_what_ran_captions_its_figures_and_links_only_files_beside_it(report_dir):
@@ -63,3 +63,35 @@ def test_no_gaits_renders_nothing(small_run, tmp_path):
     assert main(["report", str(small_run), "-o", str(out), "--no-gaits"]) == 0
     assert not list(out.glob("gaits-*.gif"))
     assert "Gaits" not in (out / "index.html").read_text()
+
+
+SLIDE_TO_THE_FIRST_MOMENT = """(async () => {
+  const slider = document.getElementById("phase-slider"), image = document.getElementById("phase-map");
+  const before = image.getAttribute("src");
+  slider.value = 0;
+  slider.dispatchEvent(new Event("input"));
+  await new Promise((done) => { if (image.complete) done(); else { image.onload = done; image.onerror = done; } });
+  return {before, after: image.getAttribute("src"), width: image.naturalWidth,
+          label: document.getElementById("phase-label").textContent};
+})()"""
+
+
+def test_the_page_steps_through_the_median_run_s_phases(report_dir, small_run):
+    """The report shows the archive at the start and end of every phase (phases.npz), one
+    frame per moment, the final archive first."""
+    from smol_dsl.rundir.snapshots import read_snapshots
+
+    frames = sorted(report_dir.glob("phase-maps-*.png"))
+    assert len(frames) == len(read_snapshots(small_run)) == 2 * 10
+    page = (report_dir / "index.html").read_text()
+    assert 'id="phase-slider"' in page and f'src="{frames[-1].name}"' in page and "phase 9, end" in page
+
+
+@pytest.mark.skipif(chromium() is None, reason="no Chromium (Debian: apt-get install chromium; .ci/run installs it)")
+def test_the_phase_slider_changes_the_map_in_chromium(report_dir):
+    seen = visit(report_dir / "index.html", script=SLIDE_TO_THE_FIRST_MOMENT)
+    assert not seen.errors, seen.errors
+    assert seen.result["before"] == "phase-maps-019.png" and seen.result["after"] == "phase-maps-000.png"
+    assert seen.result["width"] > 0 and seen.result["label"].startswith("phase 0, start")
+    outside = [url for url in seen.requests if not url.startswith(report_dir.resolve().as_uri())]
+    assert not outside, outside

@@ -19,10 +19,12 @@ def index_page(
     described: Sequence[tuple[str, str]] = (),
     compared_with_paper: bool = False,
     robustness: str = "",
+    phase_maps: str = "",
 ) -> bytes:
     """index.html: the table, what ran (`runs_described`), the figures (stem, caption) and
     the gaits, every image and link a file beside it (no script, style sheet or font from
-    anywhere); `robustness`, the robustness section's HTML, after the figures."""
+    anywhere; the phase maps' slider is a script in the page); `robustness`, the robustness
+    section's HTML, and `phase_maps`, the archives through the phases, after the figures."""
     esc = html.escape
     images = "\n".join(
         f'<figure id="{esc(stem)}"><img src="{esc(stem)}.png" alt="{esc(text)}" style="max-width: 100%">'
@@ -56,6 +58,7 @@ def index_page(
 <ul id="what-ran">{ran}</ul>
 <h2>Figures</h2>
 {images}
+{phase_maps}
 {robustness}
 {f"<h2>Gaits</h2>{moving}" if gaits else ""}
 <p>Also here: {", ".join(links)}.</p>

@@ -23,6 +23,7 @@ from smol_dsl.results.conditions import ABLATIONS
 from smol_dsl.results.output import check_writable_directory, write_files
 from smol_dsl.results.page import index_page
 from smol_dsl.results.paper import compare_with_paper
+from smol_dsl.results.phase_maps import PHASE_MAP_FILES, frame_name, phase_map_frames, phase_maps_html
 from smol_dsl.results.report_figures import archives_figure, reevaluation_figure, results_figure
 from smol_dsl.results.robustness import (
     Robustness,
@@ -53,8 +54,8 @@ REPORT_FILES = (
     *(f"{stem}{suffix}" for stem in FIGURE_STEMS for suffix in (".png", ".pdf")),
     *ROBUSTNESS_REPORT_FILES,
 )
-"""Every file a report may write but its gaits (`gaits-*.gif`): an output directory holding
-any of them holds a report."""
+"""Every file a report may write but its gaits (`gaits-*.gif`) and its phase maps
+(`phase-maps-*.png`): an output directory holding any of them holds a report."""
 GAIT_FILES = "gaits-*.gif"
 
 
@@ -86,7 +87,8 @@ def earlier_report(out_dir: str | Path) -> list[str]:
     out = Path(out_dir)
     if not out.is_dir():
         return []
-    return [name for name in REPORT_FILES if os.path.lexists(out / name)] + sorted(p.name for p in out.glob(GAIT_FILES))
+    globbed = [p.name for pattern in (GAIT_FILES, PHASE_MAP_FILES) for p in out.glob(pattern)]
+    return [name for name in REPORT_FILES if os.path.lexists(out / name)] + sorted(globbed)
 
 
 def check_output_directory(out_dir: str | Path, force: bool = False) -> list[str]:
@@ -150,8 +152,11 @@ def render_report(
             "every schedule shown has its final body for good."
         )
     low, high = descriptor_bounds(table.task)
+    frames: list[tuple[str, bytes]] = []
     if low:  # each schedule's run with the median final score, side by side
         chosen = {name: median_run(runs, table.metric) for name, runs in groups.items()}
+        frames = phase_map_frames(chosen, low, high, table.task)
+        files.update({frame_name(index): png for index, (_, png) in enumerate(frames)})
         panels = [(name, run.seed, run.final_archive()) for name, run in chosen.items()]
         by = table.metric.replace("_", " ")
         figures["archives"] = archives_figure(panels, low, high, f"{table.task}: final archives (median run by {by})")
@@ -187,6 +192,7 @@ def render_report(
         described,
         comparison is not None,
         robustness_html(robustness) if robustness is not None else "",
+        phase_maps_html([label for label, _ in frames]),
     )
     return files
 

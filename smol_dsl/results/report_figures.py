@@ -122,20 +122,29 @@ def reevaluation_figure(groups: Mapping[str, Sequence[RunRecord]], title: str) -
 
 
 def archives_figure(
-    panels: Sequence[tuple[str, int, FinalArchive]], low: Sequence[float], high: Sequence[float], title: str
+    panels: Sequence[tuple[str, int, FinalArchive]],
+    low: Sequence[float],
+    high: Sequence[float],
+    title: str,
+    *,
+    scale: tuple[float, float] | None = None,
+    pixels: int = 300,
 ) -> Figure:
-    """Final archives side by side, in rows of up to ARCHIVE_COLUMNS, on one colour scale:
-    one panel per (schedule name, seed, archive), titled with the name, seed and coverage
-    (for 1 or more than 2 descriptors, the title says what the maps show)."""
+    """Final archives side by side, in rows of up to ARCHIVE_COLUMNS, on one colour scale
+    (`scale`, or the panels' own fitnesses): one panel per (schedule name, seed, archive),
+    titled with the name, seed and coverage (for 1 or more than 2 descriptors, the title
+    says what the maps show)."""
     filled = np.concatenate([archive.fitnesses[archive.filled] for _, _, archive in panels])
     vmin, vmax = (float(filled.min()), float(filled.max())) if filled.size else (None, None)
+    if scale is not None:
+        vmin, vmax = scale
     columns = min(len(panels), ARCHIVE_COLUMNS)
     rows = math.ceil(len(panels) / columns)
     figure = Figure(figsize=(3.6 * columns + 1.0, 3.6 * rows + 0.4), layout="constrained")
     axes = np.atleast_1d(figure.subplots(rows, columns)).reshape(-1)
     shown = None
     for ax, (name, seed, archive) in zip(axes, panels, strict=False):
-        shown = draw_archive(ax, archive.centroids, archive.fitnesses, low, high, pixels=300, vmin=vmin, vmax=vmax)
+        shown = draw_archive(ax, archive.centroids, archive.fitnesses, low, high, pixels=pixels, vmin=vmin, vmax=vmax)
         coverage = 100 * archive.filled.mean()
         ax.set_title(f"{legend_label(name)}, seed {seed}\ncoverage {coverage:.1f}%", fontsize=9)
     for ax in axes[len(panels) :]:
