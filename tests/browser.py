@@ -44,8 +44,8 @@ class PageVisit:
     result: object = None  # what `script` returned
 
 
-def visit(page: Path, timeout: float = 60.0, script: str | None = None) -> PageVisit:
-    """Load `page` (a file) in a fresh headless Chromium and report what happened; `script`,
+def visit(page: Path | str, timeout: float = 60.0, script: str | None = None) -> PageVisit:
+    """Load `page` (a file, or a URL) in a fresh headless Chromium and report what happened; `script`,
     an expression (a promise is awaited), is evaluated once the page has loaded, before its
     images are read, and its JSON-able value kept as `result`."""
     from websockets.sync.client import connect
@@ -100,7 +100,7 @@ def visit(page: Path, timeout: float = 60.0, script: str | None = None) -> PageV
             session = send("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
             for domain in ("Network", "Runtime", "Log", "Page"):
                 send(f"{domain}.enable", session)
-            send("Page.navigate", session, url=page.resolve().as_uri())
+            send("Page.navigate", session, url=page if isinstance(page, str) else page.resolve().as_uri())
             while not loaded:
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"{page} did not finish loading")

@@ -60,7 +60,7 @@ def pytest_configure(config: pytest.Config) -> None:
         settings.load_profile("fast-tier")
 
 
-COMPILING_FIXTURES = {"small_run", "small_result", "mixed_sweep", "walker", "cheetah", "robust_sweep"}
+COMPILING_FIXTURES = {"small_run", "small_result", "mixed_sweep", "walker", "cheetah", "robust_sweep", "explored_sweep"}
 """Fixtures that build and compile Brax tasks: a test that uses one is `slow`."""
 
 
@@ -79,6 +79,7 @@ SHARED_WORKERS = {
     "test_entry_points": "small-runs",
     "test_replay": "small-runs",
     "test_robustness": "small-runs",
+    "test_explorer": "small-runs",
     "test_tasks": "brax-tasks",
     "test_body": "brax-tasks",
     "test_install": "builds",

@@ -1,4 +1,4 @@
-"""The `smol-dsl` command line: check, plot, run, sweep, reproduce, report, robustness and render.
+"""The `smol-dsl` command line: check, plot, run, sweep, reproduce, report, robustness, render and explore.
 
 One module per command adds its own subparser and does its work (`check`, `plot`, `run` for
 both `run` and `sweep`, `report`); `common` holds what they share: option types, the
@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from smol_dsl.cli import check, plot, render, report, reproduce, robustness, run
+from smol_dsl.cli import check, explore, plot, render, report, reproduce, robustness, run
 from smol_dsl.cli.common import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, OPTIONS, exit_status
 
 if TYPE_CHECKING:
@@ -44,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_parser(commands)
     robustness.add_parser(commands)
     render.add_parser(commands)
+    explore.add_parser(commands)
     return parser
 
 

@@ -1,0 +1,147 @@
+"""The explorer's page: one HTML file with its script and style inline (no request leaves
+the server), drawing each run's archive on a canvas with a slider over its phases, the
+coverage curve with the moment marked, and, for a clicked cell, the final archive's elite
+rendered in the bodies chosen. The view (run, moment, cell) is kept in the URL's fragment,
+so a view can be shared; arrow keys step through the moments, space plays them."""
+
+from __future__ import annotations
+
+PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>smol-dsl explore</title><link rel="icon" href="data:,">
+<style>
+body { font-family: sans-serif; margin: 1em; max-width: 1300px }
+#main { display: flex; gap: 1.5em; flex-wrap: wrap }
+canvas { border: 1px solid #ccc; cursor: crosshair }
+#controls { margin: .5em 0 }
+#slider { width: 420px; vertical-align: middle }
+#cell-info { min-width: 320px; max-width: 520px }
+#status { color: #555 } .error { color: #b00 }
+</style></head>
+<body>
+<h1>smol-dsl explore</h1>
+<p>A run's archive at the start and end of each phase; click a cell for the final archive's elite in it, rolled out in
+the bodies ticked (the same rollout as <code>smol-dsl render</code>). Keys: left and right step, space plays.</p>
+<label>run <select id="run"></select></label>
+<div id="main">
+ <div>
+  <canvas id="map" width="520" height="520" aria-label="archive map"></canvas>
+  <div id="controls"><input type="range" id="slider" min="0" max="0" value="0" aria-label="moment">
+   <button type="button" id="play">play</button> <span id="moment"></span></div>
+  <canvas id="curve" width="520" height="170" aria-label="coverage"></canvas>
+ </div>
+ <div id="cell-info">
+  <p>bodies: <label><input type="checkbox" id="body-final" checked> final</label>
+   <label><input type="checkbox" id="body-child" checked> phase 0 (the child)</label></p>
+  <p id="status">click a filled cell</p>
+  <p id="fitness"></p>
+  <img id="gait" alt="" hidden>
+ </div>
+</div>
+<script>
+(() => {
+const $ = (id) => document.getElementById(id);
+const state = {runs: [], run: null, data: null, snap: 0, cell: null, timer: null};
+const stops = [[68,1,84],[59,82,139],[33,145,140],[94,201,98],[253,231,37]];
+const color = (t) => { t = Math.max(0, Math.min(1, t)) * (stops.length - 1); const i = Math.min(stops.length - 2, Math.floor(t));
+  const f = t - i, a = stops[i], b = stops[i + 1]; return `rgb(${a.map((v, k) => Math.round(v + f * (b[k] - v))).join(",")})`; };
+const hash = () => Object.fromEntries(location.hash.slice(1).split("&").filter(Boolean).map((p) => p.split("=")));
+const save = () => { const h = `run=${state.run}&moment=${state.snap}` + (state.cell === null ? "" : `&cell=${state.cell}`);
+  history.replaceState(null, "", "#" + h); };
+function position(c) {
+  const d = state.data, m = $("map"), pad = 20, w = m.width - 2 * pad, h = m.height - 2 * pad;
+  const x = (d.centroids[c][0] - d.low[0]) / (d.high[0] - d.low[0]);
+  const y = d.centroids[c].length > 1 ? (d.centroids[c][1] - d.low[1]) / (d.high[1] - d.low[1]) : 0.5;
+  return [pad + x * w, pad + (1 - y) * h];
+}
+function scale() {
+  const all = state.data.snapshots.flatMap((s) => s.fitnesses).concat(state.data.final).filter((v) => v !== null);
+  return [Math.min(...all), Math.max(...all)];
+}
+function draw() {
+  const d = state.data, m = $("map"), g = m.getContext("2d");
+  g.clearRect(0, 0, m.width, m.height);
+  const fit = d.snapshots.length ? d.snapshots[state.snap].fitnesses : d.final, [lo, hi] = scale();
+  const r = Math.max(3, 0.45 * (m.width - 40) / Math.sqrt(d.centroids.length));
+  d.centroids.forEach((_, c) => { const [x, y] = position(c); g.beginPath(); g.arc(x, y, fit[c] === null ? 1.5 : r, 0, 2 * Math.PI);
+    g.fillStyle = fit[c] === null ? "#bbb" : color(hi > lo ? (fit[c] - lo) / (hi - lo) : 1); g.fill();
+    if (c === state.cell) { g.lineWidth = 2; g.strokeStyle = "#e00"; g.stroke(); } });
+  const filled = fit.filter((v) => v !== null).length, s = d.snapshots[state.snap];
+  $("moment").textContent = s ? `phase ${s.phase}, ${s.moment} (generation ${s.generation}): ${filled} cells, coverage ${(100 * filled / fit.length).toFixed(1)}%`
+    : `final archive: ${filled} cells`;
+  drawCurve();
+}
+function drawCurve() {
+  const d = state.data, c = $("curve"), g = c.getContext("2d"), pad = 24, w = c.width - 2 * pad, h = c.height - 2 * pad;
+  g.clearRect(0, 0, c.width, c.height);
+  const gens = d.generations_per_row, last = Math.max(1, gens[gens.length - 1]), top = Math.max(...d.coverage, 1);
+  g.strokeStyle = "#1f77b4"; g.beginPath();
+  d.coverage.forEach((v, i) => { const x = pad + w * gens[i] / last, y = pad + h * (1 - v / top); i ? g.lineTo(x, y) : g.moveTo(x, y); });
+  g.stroke(); g.fillStyle = "#333"; g.fillText(`coverage % (max ${top.toFixed(1)}) over generations`, pad, 14);
+  const s = d.snapshots[state.snap];
+  if (s) { const x = pad + w * s.generation / last; g.strokeStyle = "#e00"; g.beginPath(); g.moveTo(x, pad); g.lineTo(x, pad + h); g.stroke(); }
+}
+function setMoment(i) { state.snap = Math.max(0, Math.min(state.data.snapshots.length - 1, i)); $("slider").value = state.snap; draw(); save(); }
+function cellAt(x, y) {
+  let best = null, dist = Infinity;
+  state.data.centroids.forEach((_, c) => { const [cx, cy] = position(c), e = (cx - x) ** 2 + (cy - y) ** 2; if (e < dist) { dist = e; best = c; } });
+  return best;
+}
+async function showCell(c) {
+  state.cell = c; draw(); save();
+  const bodies = [["body-final", "final"], ["body-child", "phase:0"]].filter(([id]) => $(id).checked).map(([, b]) => b);
+  if (state.data.final[c] === null) { $("status").textContent = `cell ${c} is empty in the final archive`; $("gait").hidden = true; return; }
+  const started = performance.now(), tick = setInterval(() => { $("status").textContent =
+    `rendering cell ${c}... ${((performance.now() - started) / 1000).toFixed(0)} s`; }, 250);
+  $("status").className = ""; $("status").textContent = `rendering cell ${c}...`;
+  try {
+    const query = new URLSearchParams([["cell", c], ...bodies.map((b) => ["body", b])]);
+    const reply = await fetch(`api/runs/${state.run}/gait?${query}`), answer = await reply.json();
+    if (!reply.ok) throw new Error(answer.error);
+    if (state.cell !== c) return;
+    $("gait").src = answer.image; $("gait").alt = `the elite of cell ${c}`; $("gait").hidden = false;
+    $("fitness").textContent = `cell ${c}: archive fitness ${answer.archive_fitness.toFixed(4)}, descriptor ` +
+      `(${answer.archive_descriptor.map((v) => v.toFixed(3)).join(", ")}); ` +
+      answer.gaits.map((g) => `${g.body} body: fitness ${g.fitness.toFixed(4)}`).join("; ");
+    $("status").textContent = answer.cached ? "from the cache" : `rendered in ${answer.seconds} s`;
+  } catch (error) { $("status").className = "error"; $("status").textContent = String(error.message || error); }
+  finally { clearInterval(tick); }
+}
+async function loadRun(number, moment, cell) {
+  state.run = number; state.data = await (await fetch(`api/runs/${number}`)).json();
+  $("slider").max = Math.max(0, state.data.snapshots.length - 1);
+  state.cell = null; $("gait").hidden = true; $("fitness").textContent = "";
+  setMoment(moment === undefined ? state.data.snapshots.length - 1 : moment);
+  if (cell !== undefined) await showCell(cell);
+}
+$("slider").addEventListener("input", () => setMoment(Number($("slider").value)));
+$("run").addEventListener("change", () => loadRun(Number($("run").value)));
+$("map").addEventListener("click", (event) => { const box = $("map").getBoundingClientRect();
+  showCell(cellAt((event.clientX - box.left) * $("map").width / box.width, (event.clientY - box.top) * $("map").height / box.height)); });
+function play() {
+  if (state.timer) { clearInterval(state.timer); state.timer = null; $("play").textContent = "play"; return; }
+  if (state.snap >= state.data.snapshots.length - 1) setMoment(0);
+  $("play").textContent = "pause";
+  state.timer = setInterval(() => { if (state.snap >= state.data.snapshots.length - 1) return play(); setMoment(state.snap + 1); }, 300);
+}
+$("play").addEventListener("click", play);
+document.addEventListener("keydown", (event) => { if (event.target.tagName === "SELECT") return;
+  if (event.key === "ArrowLeft") setMoment(state.snap - 1); else if (event.key === "ArrowRight") setMoment(state.snap + 1);
+  else if (event.key === " ") { event.preventDefault(); play(); } });
+window.explorer = {state, position, showCell, setMoment};
+(async () => {
+  state.runs = await (await fetch("api/runs")).json();
+  state.runs.forEach((r) => { const o = document.createElement("option"); o.value = r.id; o.textContent = r.label; $("run").append(o); });
+  const h = hash(), run = h.run !== undefined ? Number(h.run) : 0;
+  $("run").value = run;
+  await loadRun(run, h.moment !== undefined ? Number(h.moment) : undefined, h.cell !== undefined ? Number(h.cell) : undefined);
+  window.explorer.ready = true;
+})();
+})();
+</script>
+</body></html>
+"""
+
+
+def explorer_page() -> str:
+    """The page's HTML (script and style inline)."""
+    return PAGE
