@@ -26,12 +26,13 @@ the bodies ticked (the same rollout as <code>smol-dsl render</code>). Keys: left
  <div>
   <canvas id="map" width="520" height="520" aria-label="archive map"></canvas>
   <div id="controls"><input type="range" id="slider" min="0" max="0" value="0" aria-label="moment">
-   <button type="button" id="play">play</button> <span id="moment"></span></div>
+   <button type="button" id="play">play</button> <span id="moment"></span> <span id="view"></span></div>
   <canvas id="curve" width="520" height="170" aria-label="coverage"></canvas>
  </div>
  <div id="cell-info">
   <p>bodies: <label><input type="checkbox" id="body-final" checked> final</label>
-   <label><input type="checkbox" id="body-child" checked> phase 0 (the child)</label></p>
+   <label><input type="checkbox" id="body-child" checked> the child: phase
+   <input type="number" id="child-phase" value="0" min="0" style="width: 4em"></label></p>
   <p id="status">click a filled cell</p>
   <p id="fitness"></p>
   <img id="gait" alt="" hidden>
@@ -65,7 +66,8 @@ function draw() {
   d.centroids.forEach((_, c) => { const [x, y] = position(c); g.beginPath(); g.arc(x, y, fit[c] === null ? 1.5 : r, 0, 2 * Math.PI);
     g.fillStyle = fit[c] === null ? "#bbb" : color(hi > lo ? (fit[c] - lo) / (hi - lo) : 1); g.fill();
     if (c === state.cell) { g.lineWidth = 2; g.strokeStyle = "#e00"; g.stroke(); } });
-  const filled = fit.filter((v) => v !== null).length, s = d.snapshots[state.snap];
+  const filled = fit.filter((v) => v !== null).length, s = d.snapshots[state.snap], dims = d.centroids[0].length;
+  $("view").textContent = dims > 2 ? `cells at descriptors 1 and 2 of ${dims}` : dims === 1 ? "cells along the descriptor" : "";
   $("moment").textContent = s ? `phase ${s.phase}, ${s.moment} (generation ${s.generation}): ${filled} cells, coverage ${(100 * filled / fit.length).toFixed(1)}%`
     : `final archive: ${filled} cells`;
   drawCurve();
@@ -88,7 +90,7 @@ function cellAt(x, y) {
 }
 async function showCell(c) {
   state.cell = c; draw(); save();
-  const bodies = [["body-final", "final"], ["body-child", "phase:0"]].filter(([id]) => $(id).checked).map(([, b]) => b);
+  const bodies = [["body-final", "final"], ["body-child", `phase:${$("child-phase").value || 0}`]].filter(([id]) => $(id).checked).map(([, b]) => b);
   if (state.data.final[c] === null) { $("status").textContent = `cell ${c} is empty in the final archive`; $("gait").hidden = true; return; }
   const started = performance.now(), tick = setInterval(() => { $("status").textContent =
     `rendering cell ${c}... ${((performance.now() - started) / 1000).toFixed(0)} s`; }, 250);
@@ -108,7 +110,7 @@ async function showCell(c) {
 }
 async function loadRun(number, moment, cell) {
   state.run = number; state.data = await (await fetch(`api/runs/${number}`)).json();
-  $("slider").max = Math.max(0, state.data.snapshots.length - 1);
+  $("slider").max = Math.max(0, state.data.snapshots.length - 1); $("child-phase").max = state.data.phases - 1;
   state.cell = null; $("gait").hidden = true; $("fitness").textContent = "";
   setMoment(moment === undefined ? state.data.snapshots.length - 1 : moment);
   if (cell !== undefined) await showCell(cell);
