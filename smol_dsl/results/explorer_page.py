@@ -23,10 +23,10 @@ canvas { border: 1px solid #ccc; cursor: crosshair }
 the bodies ticked (the same rollout as <code>smol-dsl render</code>). Keys: left and right step, space plays.</p>
 <label>run <select id="run"></select></label>
 <div id="main">
- <div>
+ <div id="left" style="width: 540px">
   <canvas id="map" width="520" height="520" aria-label="archive map"></canvas>
   <div id="controls"><input type="range" id="slider" min="0" max="0" value="0" aria-label="moment">
-   <button type="button" id="play">play</button> <span id="moment"></span> <span id="view"></span></div>
+   <button type="button" id="play">play</button><br><span id="moment"></span><br><small id="view"></small></div>
   <canvas id="curve" width="520" height="170" aria-label="coverage"></canvas>
  </div>
  <div id="cell-info">
@@ -67,7 +67,8 @@ function draw() {
     g.fillStyle = fit[c] === null ? "#bbb" : color(hi > lo ? (fit[c] - lo) / (hi - lo) : 1); g.fill();
     if (c === state.cell) { g.lineWidth = 2; g.strokeStyle = "#e00"; g.stroke(); } });
   const filled = fit.filter((v) => v !== null).length, s = d.snapshots[state.snap], dims = d.centroids[0].length;
-  $("view").textContent = dims > 2 ? `cells at descriptors 1 and 2 of ${dims}` : dims === 1 ? "cells along the descriptor" : "";
+  $("view").textContent = (dims > 2 ? `cells at descriptors 1 and 2 of ${dims}; ` : dims === 1 ? "cells along the descriptor; " : "") +
+    `colour: fitness from ${lo.toFixed(1)} (purple) to ${hi.toFixed(1)} (yellow)`;
   $("moment").textContent = s ? `phase ${s.phase}, ${s.moment} (generation ${s.generation}): ${filled} cells, coverage ${(100 * filled / fit.length).toFixed(1)}%`
     : `final archive: ${filled} cells`;
   drawCurve();
