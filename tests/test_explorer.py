@@ -186,13 +186,20 @@ CLICK_A_FILLED_CELL = """(async () => {
   const first = moment.textContent, pixels = document.getElementById("map").toDataURL();
   slider.value = slider.max; slider.dispatchEvent(new Event("input"));
   const changed = document.getElementById("map").toDataURL() !== pixels;
+  const curve = document.getElementById("curve");
+  const ink = curve.getContext("2d").getImageData(0, 0, curve.width, curve.height).data;
+  let blue = 0, orange = 0;  // the coverage line and the max-fitness line
+  for (let i = 0; i < ink.length; i += 4) {
+    if (ink[i + 3] > 128 && ink[i] < 90 && ink[i + 2] > 140) blue++;
+    if (ink[i + 3] > 128 && ink[i] > 200 && ink[i + 1] > 90 && ink[i + 1] < 170 && ink[i + 2] < 80) orange++;
+  }
   const data = window.explorer.state.data, cell = data.final.findIndex((f) => f !== null);
   const [x, y] = window.explorer.position(cell), box = document.getElementById("map").getBoundingClientRect();
   const click = {clientX: box.left + x, clientY: box.top + y, bubbles: true};
   document.getElementById("map").dispatchEvent(new MouseEvent("click", click));
   const image = document.getElementById("gait");
   await until(() => !image.hidden && image.complete && image.naturalWidth > 0);
-  return {last, first, changed, cell, fitness: document.getElementById("fitness").textContent,
+  return {last, first, changed, cell, blue, orange, fitness: document.getElementById("fitness").textContent,
           width: image.naturalWidth, hash: location.hash, status: document.getElementById("status").textContent};
 })()"""
 
@@ -205,6 +212,7 @@ def test_the_page_in_chromium_moves_the_slider_and_plays_a_clicked_elite(server,
     result = seen.result
     assert result["first"].startswith("phase 0, start") and result["last"].startswith("phase 9, end")
     assert result["changed"] and result["width"] > 0, result
+    assert result["blue"] > 100 and result["orange"] > 100, result  # both curves are drawn
     archive = load_archive(explorer.runs[0].record.directory)
     assert f"archive fitness {archive.fitnesses[result['cell']]:.4f}" in result["fitness"]
     assert f"final body: fitness {archive.fitnesses[result['cell']]:.4f}" in result["fitness"]  # the same rollout

@@ -1,6 +1,6 @@
 """The explorer's page: one HTML file with its script and style inline (no request leaves
 the server), drawing each run's archive on a canvas with a slider over its phases, the
-coverage curve with the moment marked, and, for a clicked cell, the final archive's elite
+coverage and max-fitness curves with the moment marked, and, for a clicked cell, the final archive's elite
 rendered in the bodies chosen. The view (run, moment, cell) is kept in the URL's fragment,
 so a view can be shared; arrow keys step through the moments, space plays them."""
 
@@ -27,7 +27,7 @@ the bodies ticked (the same rollout as <code>smol-dsl render</code>). Keys: left
   <canvas id="map" width="520" height="520" aria-label="archive map"></canvas>
   <div id="controls"><input type="range" id="slider" min="0" max="0" value="0" aria-label="moment">
    <button type="button" id="play">play</button><br><span id="moment"></span><br><small id="view"></small></div>
-  <canvas id="curve" width="520" height="170" aria-label="coverage"></canvas>
+  <canvas id="curve" width="520" height="170" aria-label="coverage and max fitness"></canvas>
  </div>
  <div id="cell-info">
   <p>bodies: <label><input type="checkbox" id="body-final" checked> final</label>
@@ -79,7 +79,19 @@ function drawCurve() {
   const gens = d.generations_per_row, last = Math.max(1, gens[gens.length - 1]), top = Math.max(...d.coverage, 1);
   g.strokeStyle = "#1f77b4"; g.beginPath();
   d.coverage.forEach((v, i) => { const x = pad + w * gens[i] / last, y = pad + h * (1 - v / top); i ? g.lineTo(x, y) : g.moveTo(x, y); });
-  g.stroke(); g.fillStyle = "#333"; g.fillText(`coverage % (max ${top.toFixed(1)}) over generations`, pad, 14);
+  g.stroke(); g.fillStyle = "#1f77b4"; g.fillText(`coverage % (0 to ${top.toFixed(1)})`, pad, 14);
+  const best = d.max_fitness.filter(v => v !== null);
+  if (best.length) {  // max fitness on its own scale, from its lowest to its highest value
+    const low = Math.min(...best), high = Math.max(...best), span = high - low || 1;
+    g.strokeStyle = "#ff7f0e"; g.beginPath(); let drawn = false;
+    d.max_fitness.forEach((v, i) => {
+      if (v === null) return;
+      const x = pad + w * gens[i] / last, y = pad + h * (1 - (v - low) / span);
+      drawn ? g.lineTo(x, y) : g.moveTo(x, y); drawn = true;
+    });
+    g.stroke(); g.fillStyle = "#ff7f0e"; g.fillText(`max fitness (${low.toFixed(1)} to ${high.toFixed(1)})`, pad + 200, 14);
+  }
+  g.fillStyle = "#333"; g.fillText("over generations", pad + 400, 14);
   const s = d.snapshots[state.snap];
   if (s) { const x = pad + w * s.generation / last; g.strokeStyle = "#e00"; g.beginPath(); g.moveTo(x, pad); g.lineTo(x, pad + h); g.stroke(); }
 }
