@@ -90,6 +90,7 @@ def test_a_click_renders_the_archive_s_elite_with_its_fitness_then_serves_it_fro
     assert answer["archive_fitness"] == float(archive.fitnesses[cell])
     final = answer["gaits"][0]
     assert final["body"] == "final" and final["fitness"] == float(archive.fitnesses[cell])  # the same rollout
+    assert final["inexact"] is None  # in the program that scored the archive
     assert answer["gaits"][1]["body"] == "phase 0" and not answer["cached"]
     status, image = get(f"{url}{answer['image']}")
     assert status == 200 and image[:6] == b"GIF89a"
@@ -216,6 +217,7 @@ def test_the_page_in_chromium_moves_the_slider_and_plays_a_clicked_elite(server,
     archive = load_archive(explorer.runs[0].record.directory)
     assert f"archive fitness {archive.fitnesses[result['cell']]:.4f}" in result["fitness"]
     assert f"final body: fitness {archive.fitnesses[result['cell']]:.4f}" in result["fitness"]  # the same rollout
+    assert "not replayed" not in result["fitness"]  # in the run's own program: no rounding note
     assert f"cell={result['cell']}" in result["hash"]
     assert all(request.startswith(url) or request.startswith("data:") for request in seen.requests), seen.requests
     (tmp_path / "explorer.png").write_bytes(seen.screenshot)

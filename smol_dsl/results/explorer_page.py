@@ -116,7 +116,9 @@ async function showCell(c) {
     $("gait").src = answer.image; $("gait").alt = `the elite of cell ${c}`; $("gait").hidden = false;
     $("fitness").textContent = `cell ${c}: archive fitness ${answer.archive_fitness.toFixed(4)}, descriptor ` +
       `(${answer.archive_descriptor.map((v) => v.toFixed(3)).join(", ")}); ` +
-      answer.gaits.map((g) => `${g.body} body: fitness ${g.fitness.toFixed(4)}`).join("; ");
+      answer.gaits.map((g) => `${g.body} body: fitness ${g.fitness.toFixed(4)}`).join("; ") +
+      (answer.gaits[0].inexact ? ` (not replayed in the program that scored the archive: ${answer.gaits[0].inexact}; ` +
+        "in the final body the fitness agrees with the archive's to float rounding, not bit for bit)" : "");
     $("status").textContent = answer.cached ? "from the cache" : `rendered in ${answer.seconds} s`;
   } catch (error) { $("status").className = "error"; $("status").textContent = String(error.message || error); }
   finally { clearInterval(tick); }
