@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -131,6 +132,26 @@ def test_bad_requests_get_a_4xx_and_nothing_outside_is_served(server, path, stat
     assert got == status and message in body.decode(), body
     assert b"Traceback" not in body and b"root:" not in body
     assert get(f"{url}api/runs")[0] == 200  # still answering
+
+
+def test_links_leading_out_are_not_followed(server, explored_sweep, tmp_path):
+    """A link planted in the gait cache is not served; a run reached only through a link
+    inside the given directory is not listed (nothing outside the paths given is read)."""
+    url, explorer = server
+    secret = tmp_path / "secret.gif"
+    secret.write_bytes(b"GIF89a secret")
+    (explorer.cache / "abcdefabcdefabcdefabcdef.gif").symlink_to(secret)
+    status, body = get(f"{url}gaits/abcdefabcdefabcdefabcdef.gif")
+    assert status == 404 and "a link, not served" in body["error"]
+
+    from smol_dsl.results.explorer import Explorer
+
+    given = tmp_path / "given"
+    shutil.copytree(next(explored_sweep.glob("*-seed0")), given / "own-run")
+    (given / "linked-run").symlink_to(next(explored_sweep.glob("*-seed1")), target_is_directory=True)
+    listed = Explorer([given], replay=None, cache=tmp_path / "cache")
+    assert [run.record.directory for run in listed.runs] == [(given / "own-run").resolve()]
+    listed.close()
 
 
 def test_a_burst_of_clicks_is_queued_or_refused_and_the_server_keeps_answering(server):

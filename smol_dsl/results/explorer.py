@@ -213,11 +213,14 @@ class Explorer:
         return {**result, "cached": False}
 
     def gait_file(self, name: str) -> Path:
-        """A cached GIF by its name (24 hex digits and .gif); anything else is a 404."""
+        """A cached GIF by its name (24 hex digits and .gif), a file of the cache itself (a
+        symlink, which could lead out of it, is not served); anything else is a 404."""
         stem = name.removesuffix(".gif")
         if not name.endswith(".gif") or len(stem) != 24 or any(c not in "0123456789abcdef" for c in stem):
             raise RequestError(f"no gait {name!r}", 404)
         path = self.cache / name
+        if path.is_symlink():
+            raise RequestError(f"no gait {name!r}: the cache's file is a link, not served", 404)
         if not path.is_file():
             raise RequestError(f"no gait {name!r}: click its cell to render it", 404)
         return path

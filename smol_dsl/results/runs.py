@@ -60,6 +60,7 @@ def find_run_directories(paths: Iterable[str | Path]) -> list[Path]:
         if is_run_directory(path):
             candidates = [path]
         else:
+            # rglob does not descend into links: nothing reached through a link inside `path` is found
             below = {p.parent for name in (CONFIG_FILE, METRICS_FILE) for p in path.rglob(name)}
             candidates = sorted(below)
         for candidate in candidates:
