@@ -221,8 +221,17 @@ CLICK_A_FILLED_CELL = """(async () => {
   document.getElementById("map").dispatchEvent(new MouseEvent("click", click));
   const image = document.getElementById("gait");
   await until(() => !image.hidden && image.complete && image.naturalWidth > 0);
+  const beside = document.getElementById("beside");  // run 1 beside run 0, at the same moment
+  beside.value = "1"; beside.dispatchEvent(new Event("change"));
+  await until(() => !document.getElementById("right").hidden);
+  const other = document.getElementById("map-beside");
+  const dots = other.getContext("2d").getImageData(0, 0, other.width, other.height).data;
+  let inked = 0;
+  for (let i = 0; i < dots.length; i += 4) if (dots[i + 3] > 128) inked++;
   return {last, first, changed, cell, blue, orange, fitness: document.getElementById("fitness").textContent,
-          width: image.naturalWidth, hash: location.hash, status: document.getElementById("status").textContent};
+          width: image.naturalWidth, hash: location.hash, status: document.getElementById("status").textContent,
+          beside: document.getElementById("moment-beside").textContent, inked,
+          view: document.getElementById("view").textContent, labels: window.explorer.state.runs.map((r) => r.label)};
 })()"""
 
 
@@ -239,6 +248,8 @@ def test_the_page_in_chromium_moves_the_slider_and_plays_a_clicked_elite(server,
     assert f"archive fitness {archive.fitnesses[result['cell']]:.4f}" in result["fitness"]
     assert f"final body: fitness {archive.fitnesses[result['cell']]:.4f}" in result["fitness"]  # the same rollout
     assert "not replayed" not in result["fitness"]  # in the run's own program: no rounding note
-    assert f"cell={result['cell']}" in result["hash"]
+    assert f"cell={result['cell']}" in result["hash"] and "beside=1" in result["hash"]
+    assert result["beside"].startswith(f"{result['labels'][1]}: phase 9, end"), result["beside"]
+    assert result["inked"] > 1000 and result["view"].endswith("both maps"), result  # drawn, on one scale
     assert all(request.startswith(url) or request.startswith("data:") for request in seen.requests), seen.requests
     (tmp_path / "explorer.png").write_bytes(seen.screenshot)

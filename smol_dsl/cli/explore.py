@@ -25,7 +25,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "explore",
         help="a local web page: finished runs' archives through their phases, any elite's gait on a click",
         description="Serve a page on 127.0.0.1 that shows each finished run's archive at the start and end of "
-        "every phase (a slider and a play button; the coverage and max-fitness curves beside it), and, for a "
+        "every phase (a slider and a play button; the coverage and max-fitness curves below it; another run "
+        "beside it at the same moment, on one colour scale), and, for a "
         "clicked cell, the final archive's elite rolled out in the final body and the child's (phase 0), with its "
         "fitness and descriptor "
         "(the same rollout as `render`; cached, so a second click is instant). The view is in the URL. Ctrl-C stops.",

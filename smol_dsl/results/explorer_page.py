@@ -1,8 +1,10 @@
 """The explorer's page: one HTML file with its script and style inline (no request leaves
 the server), drawing each run's archive on a canvas with a slider over its phases, the
-coverage and max-fitness curves with the moment marked, and, for a clicked cell, the final archive's elite
-rendered in the bodies chosen. The view (run, moment, cell) is kept in the URL's fragment,
-so a view can be shared; arrow keys step through the moments, space plays them."""
+coverage and max-fitness curves with the moment marked, another run's archive beside it at the
+same moment on one colour scale (schedules side by side), and, for a clicked cell, the final
+archive's elite rendered in the bodies chosen. The view (run, moment, cell, the run beside) is
+kept in the URL's fragment, so a view can be shared; arrow keys step through the moments,
+space plays them."""
 
 from __future__ import annotations
 
@@ -20,14 +22,20 @@ canvas { border: 1px solid #ccc; cursor: crosshair }
 <body>
 <h1>smol-dsl explore</h1>
 <p>A run's archive at the start and end of each phase; click a cell for the final archive's elite in it, rolled out in
-the bodies ticked (the same rollout as <code>smol-dsl render</code>). Keys: left and right step, space plays.</p>
+the bodies ticked (the same rollout as <code>smol-dsl render</code>); pick another run to see beside it at the same moment,
+on one colour scale. Keys: left and right step, space plays.</p>
 <label>run <select id="run"></select></label>
+<label>beside it <select id="beside"><option value="">no other run</option></select></label>
 <div id="main">
  <div id="left" style="width: 540px">
   <canvas id="map" width="520" height="520" aria-label="archive map"></canvas>
   <div id="controls"><input type="range" id="slider" min="0" max="0" value="0" aria-label="moment">
    <button type="button" id="play">play</button><br><span id="moment"></span><br><small id="view"></small></div>
   <canvas id="curve" width="520" height="170" aria-label="coverage and max fitness"></canvas>
+ </div>
+ <div id="right" style="width: 540px" hidden>
+  <canvas id="map-beside" width="520" height="520" aria-label="the other run's archive map"></canvas>
+  <p id="moment-beside"></p>
  </div>
  <div id="cell-info">
   <p>bodies: <label><input type="checkbox" id="body-final" checked> final</label>
@@ -41,36 +49,46 @@ the bodies ticked (the same rollout as <code>smol-dsl render</code>). Keys: left
 <script>
 (() => {
 const $ = (id) => document.getElementById(id);
-const state = {runs: [], run: null, data: null, snap: 0, cell: null, timer: null};
+const state = {runs: [], run: null, data: null, snap: 0, cell: null, timer: null, beside: null, other: null};
 const stops = [[68,1,84],[59,82,139],[33,145,140],[94,201,98],[253,231,37]];
 const color = (t) => { t = Math.max(0, Math.min(1, t)) * (stops.length - 1); const i = Math.min(stops.length - 2, Math.floor(t));
   const f = t - i, a = stops[i], b = stops[i + 1]; return `rgb(${a.map((v, k) => Math.round(v + f * (b[k] - v))).join(",")})`; };
 const hash = () => Object.fromEntries(location.hash.slice(1).split("&").filter(Boolean).map((p) => p.split("=")));
-const save = () => { const h = `run=${state.run}&moment=${state.snap}` + (state.cell === null ? "" : `&cell=${state.cell}`);
+const save = () => { const h = `run=${state.run}&moment=${state.snap}` + (state.cell === null ? "" : `&cell=${state.cell}`) +
+  (state.beside === null ? "" : `&beside=${state.beside}`);
   history.replaceState(null, "", "#" + h); };
-function position(c) {
-  const d = state.data, m = $("map"), pad = 20, w = m.width - 2 * pad, h = m.height - 2 * pad;
+function position(c, d = state.data, m = $("map")) {
+  const pad = 20, w = m.width - 2 * pad, h = m.height - 2 * pad;
   const x = (d.centroids[c][0] - d.low[0]) / (d.high[0] - d.low[0]);
   const y = d.centroids[c].length > 1 ? (d.centroids[c][1] - d.low[1]) / (d.high[1] - d.low[1]) : 0.5;
   return [pad + x * w, pad + (1 - y) * h];
 }
-function scale() {
-  const all = state.data.snapshots.flatMap((s) => s.fitnesses).concat(state.data.final).filter((v) => v !== null);
+function scale() {  // one colour scale for every moment of the run and of the run beside it
+  const all = [state.data, state.other].filter(Boolean).flatMap((d) => d.snapshots.flatMap((s) => s.fitnesses).concat(d.final))
+    .filter((v) => v !== null);
   return [Math.min(...all), Math.max(...all)];
 }
-function draw() {
-  const d = state.data, m = $("map"), g = m.getContext("2d");
+function drawMap(m, d, snap, cell, lo, hi) {  // a run's archive at moment `snap` (its final one if it kept none): what it says
+  const g = m.getContext("2d"), s = d.snapshots[snap], fit = s ? s.fitnesses : d.final;
   g.clearRect(0, 0, m.width, m.height);
-  const fit = d.snapshots.length ? d.snapshots[state.snap].fitnesses : d.final, [lo, hi] = scale();
   const r = Math.max(3, 0.45 * (m.width - 40) / Math.sqrt(d.centroids.length));
-  d.centroids.forEach((_, c) => { const [x, y] = position(c); g.beginPath(); g.arc(x, y, fit[c] === null ? 1.5 : r, 0, 2 * Math.PI);
+  d.centroids.forEach((_, c) => { const [x, y] = position(c, d, m); g.beginPath(); g.arc(x, y, fit[c] === null ? 1.5 : r, 0, 2 * Math.PI);
     g.fillStyle = fit[c] === null ? "#bbb" : color(hi > lo ? (fit[c] - lo) / (hi - lo) : 1); g.fill();
-    if (c === state.cell) { g.lineWidth = 2; g.strokeStyle = "#e00"; g.stroke(); } });
-  const filled = fit.filter((v) => v !== null).length, s = d.snapshots[state.snap], dims = d.centroids[0].length;
-  $("view").textContent = (dims > 2 ? `cells at descriptors 1 and 2 of ${dims}; ` : dims === 1 ? "cells along the descriptor; " : "") +
-    `colour: fitness from ${lo.toFixed(1)} (purple) to ${hi.toFixed(1)} (yellow)`;
-  $("moment").textContent = s ? `phase ${s.phase}, ${s.moment} (generation ${s.generation}): ${filled} cells, coverage ${(100 * filled / fit.length).toFixed(1)}%`
+    if (c === cell) { g.lineWidth = 2; g.strokeStyle = "#e00"; g.stroke(); } });
+  const filled = fit.filter((v) => v !== null).length;
+  return s ? `phase ${s.phase}, ${s.moment} (generation ${s.generation}): ${filled} cells, coverage ${(100 * filled / fit.length).toFixed(1)}%`
     : `final archive: ${filled} cells`;
+}
+function draw() {
+  const d = state.data, [lo, hi] = scale(), dims = d.centroids[0].length;
+  $("moment").textContent = drawMap($("map"), d, state.snap, state.cell, lo, hi);
+  $("view").textContent = (dims > 2 ? `cells at descriptors 1 and 2 of ${dims}; ` : dims === 1 ? "cells along the descriptor; " : "") +
+    `colour: fitness from ${lo.toFixed(1)} (purple) to ${hi.toFixed(1)} (yellow)` + (state.other ? ", both maps" : "");
+  $("right").hidden = !state.other;
+  if (state.other) {  // the same moment of the other run (its last if it kept fewer)
+    const o = state.other, snap = Math.min(state.snap, Math.max(0, o.snapshots.length - 1));
+    $("moment-beside").textContent = `${state.runs[state.beside].label}: ` + drawMap($("map-beside"), o, snap, null, lo, hi);
+  }
   drawCurve();
 }
 function drawCurve() {
@@ -123,6 +141,12 @@ async function showCell(c) {
   } catch (error) { $("status").className = "error"; $("status").textContent = String(error.message || error); }
   finally { clearInterval(tick); }
 }
+async function loadBeside(number) {
+  state.beside = Number.isInteger(number) && state.runs[number] ? number : null;
+  state.other = state.beside === null ? null : await (await fetch(`api/runs/${state.beside}`)).json();
+  $("beside").value = state.beside === null ? "" : state.beside;
+  if (state.data) { draw(); save(); }
+}
 async function loadRun(number, moment, cell) {
   state.run = number; state.data = await (await fetch(`api/runs/${number}`)).json();
   $("slider").max = Math.max(0, state.data.snapshots.length - 1); $("child-phase").max = state.data.phases - 1;
@@ -132,6 +156,7 @@ async function loadRun(number, moment, cell) {
 }
 $("slider").addEventListener("input", () => setMoment(Number($("slider").value)));
 $("run").addEventListener("change", () => loadRun(Number($("run").value)));
+$("beside").addEventListener("change", () => loadBeside($("beside").value === "" ? null : Number($("beside").value)));
 $("map").addEventListener("click", (event) => { const box = $("map").getBoundingClientRect();
   showCell(cellAt((event.clientX - box.left) * $("map").width / box.width, (event.clientY - box.top) * $("map").height / box.height)); });
 function play() {
@@ -144,12 +169,14 @@ $("play").addEventListener("click", play);
 document.addEventListener("keydown", (event) => { if (event.target.tagName === "SELECT") return;
   if (event.key === "ArrowLeft") setMoment(state.snap - 1); else if (event.key === "ArrowRight") setMoment(state.snap + 1);
   else if (event.key === " ") { event.preventDefault(); play(); } });
-window.explorer = {state, position, showCell, setMoment};
+window.explorer = {state, position, showCell, setMoment, loadBeside};
 (async () => {
   state.runs = await (await fetch("api/runs")).json();
-  state.runs.forEach((r) => { const o = document.createElement("option"); o.value = r.id; o.textContent = r.label; $("run").append(o); });
+  state.runs.forEach((r) => { for (const id of ["run", "beside"]) {
+    const o = document.createElement("option"); o.value = r.id; o.textContent = r.label; $(id).append(o); } });
   const h = hash(), run = h.run !== undefined ? Number(h.run) : 0;
   $("run").value = run;
+  if (h.beside !== undefined) await loadBeside(Number(h.beside));
   await loadRun(run, h.moment !== undefined ? Number(h.moment) : undefined, h.cell !== undefined ? Number(h.cell) : undefined);
   window.explorer.ready = true;
 })();
