@@ -20,6 +20,7 @@ from browser import chromium, visit
 from small_runs import CONFIG, cli
 
 import smol_dsl
+from smol_dsl.results.runs import median_run
 from smol_dsl.rundir import load_archive
 
 pytestmark = pytest.mark.slow
@@ -68,12 +69,19 @@ def filled_cells(url: str, run: int) -> list[int]:
 
 
 def test_the_server_lists_the_runs_and_their_phases(server, explored_sweep):
-    url, _ = server
+    url, explorer = server
     status, runs = get(f"{url}api/runs")
     assert status == 200 and len(runs) == 4
     assert {(r["schedule"], r["seed"]) for r in runs} == {
         (s, k) for s in ("SMOL", "Vanilla MAP-Elites") for k in (0, 1)
     }
+    for schedule in ("SMOL", "Vanilla MAP-Elites"):  # the run the report shows for each schedule is marked
+        group = [r for r in runs if r["schedule"] == schedule]
+        median = median_run([explorer.runs[r["id"]].record for r in group], "max_fitness")
+        assert [r["id"] for r in group if r["median"]] == [
+            r["id"] for r in group if explorer.runs[r["id"]].record.directory == median.directory
+        ]
+        assert any(r["label"].endswith(f"the median of {schedule}'s 2 runs by max_fitness") for r in group)
     status, data = get(f"{url}api/runs/0")
     assert status == 200 and len(data["snapshots"]) == 2 * CONFIG.num_phases
     assert len(data["centroids"]) == CONFIG.num_centroids and data["low"] == [0.0, 0.0]

@@ -5,6 +5,7 @@ phases.npz and its final archive) and answers the page's questions as JSON; `cre
 wraps it in a Flask app that serves the page (`explorer_page`: one file, its script inline)
 and nothing else. A request names a run by its number in the list and a cell by its index,
 never a path, so nothing outside the run directories and the gait cache can be reached.
+In the list, each schedule's run that the report shows (its median, `median_run`) is marked.
 
 A click on a cell renders the final archive's elite in that cell (the snapshots hold no
 policies) in the bodies asked for, through the same rollout as `render`
@@ -22,17 +23,17 @@ import threading
 import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from smol_dsl.results.gaits import RenderError, resolve_bodies
-from smol_dsl.results.runs import ReportError, find_run_directories
+from smol_dsl.results.runs import ReportError, find_run_directories, median_run
 from smol_dsl.rundir import RunDirectoryError, RunRecord, load_archive, read_run
 from smol_dsl.rundir.snapshots import read_snapshots
-from smol_dsl.tasks import descriptor_bounds
+from smol_dsl.tasks import descriptor_bounds, task_spec
 
 if TYPE_CHECKING:
     from flask import Flask
@@ -59,10 +60,12 @@ class ExploredRun:
 
     record: RunRecord
     snapshots: list[Any]
+    median_of: str = ""  # "SMOL's 10 runs by max_fitness" where it is the run the report shows for its schedule
 
     @property
     def label(self) -> str:
-        return f"{self.record.schedule}, seed {self.record.seed} ({self.record.directory.name})"
+        median = f", the median of {self.median_of}" if self.median_of else ""
+        return f"{self.record.schedule}, seed {self.record.seed} ({self.record.directory.name}){median}"
 
 
 class Explorer:
@@ -85,8 +88,8 @@ class Explorer:
                 f"no finished runs in {', '.join(str(p) for p in paths)}{found}; train some with `smol-dsl run` or "
                 "`smol-dsl sweep`"
             )
-        self.runs = sorted(
-            runs, key=lambda r: (r.record.task, r.record.schedule, r.record.seed, str(r.record.directory))
+        self.runs = _mark_medians(
+            sorted(runs, key=lambda r: (r.record.task, r.record.schedule, r.record.seed, str(r.record.directory)))
         )
         self.problems = problems
         self.replay = replay
@@ -102,7 +105,8 @@ class Explorer:
     def run_list(self) -> list[dict[str, Any]]:
         return [
             {"id": number, "label": run.label, "task": run.record.task, "schedule": run.record.schedule,
-             "seed": run.record.seed, "phases": run.record.config.num_phases, "snapshots": len(run.snapshots)}
+             "seed": run.record.seed, "phases": run.record.config.num_phases, "snapshots": len(run.snapshots),
+             "median": bool(run.median_of)}
             for number, run in enumerate(self.runs)
         ]  # fmt: skip
 
@@ -224,6 +228,21 @@ class Explorer:
         if not path.is_file():
             raise RequestError(f"no gait {name!r}: click its cell to render it", 404)
         return path
+
+
+def _mark_medians(runs: list[ExploredRun]) -> list[ExploredRun]:
+    """`runs` with the run of each task's schedule (of two runs or more) that the report shows
+    marked: the median final score by the task's default metric (`median_run`)."""
+    groups: dict[tuple[str, str], list[ExploredRun]] = {}
+    for run in runs:
+        groups.setdefault((run.record.task, run.record.schedule), []).append(run)
+    medians = {}
+    for (task, schedule), group in groups.items():
+        if len(group) >= 2:
+            metric = task_spec(task).default_metric
+            chosen = median_run([run.record for run in group], metric)
+            medians[id(chosen)] = f"{schedule}'s {len(group)} runs by {metric}"
+    return [replace(run, median_of=medians.get(id(run.record), "")) for run in runs]
 
 
 def _finite(value: float) -> float | None:
