@@ -187,6 +187,22 @@ def test_a_busy_port_is_refused_with_a_message(explored_sweep, capsys):
     assert code == 2 and f"port {port} is in use" in err, err
 
 
+@pytest.mark.parametrize(
+    ("given", "flags", "message"),
+    [
+        ("missing", [], "missing: no such directory"),
+        ("a-file", [], "a-file is not a directory; give run or sweep directories"),
+        ("empty", [], "no finished runs in"),
+        ("empty", ["--port", "99999"], "--port 99999: a port is a number from 0 to 65535"),
+    ],
+)
+def test_bad_input_is_refused_with_one_message_before_serving(tmp_path, capsys, given, flags, message):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "a-file").write_text("")
+    code, err = cli(["explore", str(tmp_path / given), "--no-browser", *flags], capsys)
+    assert code == 2 and message in err and err.count("error:") == 1, err
+
+
 def test_the_command_serves_until_ctrl_c(explored_sweep, tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     process = subprocess.Popen(
