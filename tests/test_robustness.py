@@ -20,7 +20,8 @@ import smol_dsl
 from smol_dsl.results.robustness import ROBUSTNESS_FILES, robustness_of, robustness_tables
 from smol_dsl.rundir import MEDIAN, RobustnessRow, RunDirectoryError, load_archive, read_robustness, read_run
 from smol_dsl.rundir.robustness import robustness_csv
-from smol_dsl.runner.robustness import Perturbations, RobustnessError, check_perturbations, reinserted
+from smol_dsl.runner.perturbations import Perturbations, RobustnessError, check_perturbations
+from smol_dsl.runner.robustness import reinserted
 
 SCHEDULES = ("vanilla", "smol")
 SEEDS = (0, 1, 2)

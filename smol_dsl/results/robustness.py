@@ -31,7 +31,7 @@ from smol_dsl.rundir.robustness import robustness_csv
 
 if TYPE_CHECKING:
     from smol_dsl.rundir import RunRecord
-    from smol_dsl.runner.robustness import Perturbations
+    from smol_dsl.runner.perturbations import Perturbations
 
 ROBUSTNESS_FILES = ("robustness.csv", "robustness.md", "robustness.tex", "robustness.png", "robustness.pdf")
 """What `smol-dsl robustness` writes (robustness.csv is `smol_dsl.rundir`'s ROBUSTNESS_FILE)."""
@@ -396,7 +396,8 @@ def measure_and_write(
     (the output directory, the runs as `report` checks them, the perturbations), and
     measured before anything is written."""
     from smol_dsl.results.runs import load_runs
-    from smol_dsl.runner.robustness import Perturbations, check_perturbations, measure_robustness
+    from smol_dsl.runner.perturbations import Perturbations, check_perturbations
+    from smol_dsl.runner.robustness import measure_robustness
 
     perturbations = perturbations if perturbations is not None else Perturbations()
     check_robustness_output(out_dir, force)
