@@ -80,6 +80,13 @@ def explore_runs(args: argparse.Namespace) -> int:
     logging.getLogger("werkzeug").setLevel(logging.ERROR)  # no line per request
     server = make_server(HOST, sock.getsockname()[1], create_app(explorer), threaded=True, fd=sock.fileno())
     url = f"http://{HOST}:{sock.getsockname()[1]}/"
+    report_error = server.handle_error
+
+    def handle_error(request: object, client_address: object) -> None:
+        if server.socket.fileno() != -1:  # after Ctrl-C closed the server, a request cut short is no error
+            report_error(request, client_address)
+
+    server.handle_error = handle_error
     print(f"smol-dsl explore: {len(explorer.runs)} run(s) at {url} (Ctrl-C stops)", flush=True)
     for problem in explorer.problems:
         print(f"note: left out: {problem}", file=sys.stderr)
