@@ -204,11 +204,17 @@ def test_bad_input_is_refused_with_one_message_before_serving(tmp_path, capsys, 
 
 
 def test_the_command_serves_until_ctrl_c(explored_sweep, tmp_path):
-    """Ctrl-C while requests are answered stops it at once, with no traceback (one run in a
-    full suite once outlived the 60 s it is given: then every thread's stack is printed)."""
+    """Ctrl-C while requests are answered stops it at once, with no traceback. The command
+    starts with Ctrl-C's default action whoever started the suite (a shell's background job
+    ignores SIGINT, and its children inherit that); should it outlive 60 s, every thread's
+    stack is printed."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
+    with_ctrl_c = (
+        "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        "runpy.run_module('smol_dsl.cli', run_name='__main__', alter_sys=True)"
+    )
     process = subprocess.Popen(
-        [sys.executable, "-m", "smol_dsl.cli", "explore", str(explored_sweep), "--port", "0", "--no-browser",
+        [sys.executable, "-c", with_ctrl_c, "explore", str(explored_sweep), "--port", "0", "--no-browser",
          "--cache", str(tmp_path / "cache")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
