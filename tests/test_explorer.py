@@ -218,6 +218,7 @@ def test_the_command_serves_until_ctrl_c(explored_sweep, tmp_path):
          "--cache", str(tmp_path / "cache")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
+    interrupted = False
     try:
         line = process.stdout.readline()
         assert "4 run(s) at http://127.0.0.1:" in line, (line, process.stderr.read() if process.poll() else "")
@@ -227,10 +228,11 @@ def test_the_command_serves_until_ctrl_c(explored_sweep, tmp_path):
             asked = [pool.submit(lambda n: urllib.request.urlopen(f"{url}api/runs/{n % 4}", timeout=10).read(), n)
                      for n in range(40)]  # fmt: skip
             process.send_signal(signal.SIGINT)
+            interrupted = True
             for answer in asked:
                 answer.exception()  # answered, or cut off by the stop: either is fine
     finally:
-        if process.poll() is None and "asked" not in locals():
+        if not interrupted and process.poll() is None:
             process.send_signal(signal.SIGINT)
         try:
             _, err = process.communicate(timeout=60)

@@ -396,10 +396,10 @@ def measure_and_write(
     (the output directory, the runs as `report` checks them, the perturbations), and
     measured before anything is written."""
     from smol_dsl.results.runs import load_runs
-    from smol_dsl.runner.perturbations import Perturbations, check_perturbations
+    from smol_dsl.runner.perturbations import DEFAULT_PERTURBATIONS, check_perturbations
     from smol_dsl.runner.robustness import measure_robustness
 
-    perturbations = perturbations if perturbations is not None else Perturbations()
+    perturbations = perturbations if perturbations is not None else DEFAULT_PERTURBATIONS
     check_robustness_output(out_dir, force)
     groups = load_runs(paths, allow_mixed_environments)
     runs = [run for group in groups.values() for run in group]
