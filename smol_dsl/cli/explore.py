@@ -8,6 +8,7 @@ import logging
 import socket
 import sys
 import tempfile
+import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -80,10 +81,11 @@ def explore_runs(args: argparse.Namespace) -> int:
     logging.getLogger("werkzeug").setLevel(logging.ERROR)  # no line per request
     server = make_server(HOST, sock.getsockname()[1], create_app(explorer), threaded=True, fd=sock.fileno())
     url = f"http://{HOST}:{sock.getsockname()[1]}/"
+    stopping = threading.Event()
     report_error = server.handle_error
 
     def handle_error(request: object, client_address: object) -> None:
-        if server.socket.fileno() != -1:  # after Ctrl-C closed the server, a request cut short is no error
+        if not stopping.is_set():  # after Ctrl-C, a request cut short is no error
             report_error(request, client_address)
 
     server.handle_error = handle_error
@@ -94,12 +96,21 @@ def explore_runs(args: argparse.Namespace) -> int:
         import webbrowser
 
         webbrowser.open(url)
+    # The loop serves in a thread of its own, so Ctrl-C reaches the main thread while it only
+    # waits: a KeyboardInterrupt raised inside the loop could close a connection a handler
+    # thread had just been given, and that handler would report the closed socket as an error.
+    serving = threading.Thread(target=server.serve_forever, name="explore-server", daemon=True)
+    serving.start()
     try:
-        server.serve_forever()  # werkzeug's: it returns on Ctrl-C
+        while serving.is_alive():
+            serving.join(timeout=0.5)
     except KeyboardInterrupt:
-        pass
+        stopping.set()
+        logging.getLogger("werkzeug").disabled = True  # nor is a render refused by the closing explorer
+        server.shutdown()  # the loop ends between two requests and closes the socket
+        serving.join()
     finally:
-        server.server_close()
         explorer.close()
+        sock.close()
     print("smol-dsl explore: stopped", file=sys.stderr)
     return EXIT_OK
