@@ -9,6 +9,7 @@ import socket
 import sys
 import tempfile
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -99,18 +100,16 @@ def explore_runs(args: argparse.Namespace) -> int:
     # The loop serves in a thread of its own, so Ctrl-C reaches the main thread while it only
     # waits: a KeyboardInterrupt raised inside the loop could close a connection a handler
     # thread had just been given, and that handler would report the closed socket as an error.
-    serving = threading.Thread(target=server.serve_forever, name="explore-server", daemon=True)
-    serving.start()
-    try:
-        while serving.is_alive():
-            serving.join(timeout=0.5)
-    except KeyboardInterrupt:
-        stopping.set()
-        logging.getLogger("werkzeug").disabled = True  # nor is a render refused by the closing explorer
-        server.shutdown()  # the loop ends between two requests and closes the socket
-        serving.join()
-    finally:
-        explorer.close()
-        sock.close()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="explore-server") as pool:
+        serving = pool.submit(server.serve_forever)
+        try:
+            serving.result()  # returns only if the loop fails, and raises its error here
+        except KeyboardInterrupt:
+            stopping.set()
+            logging.getLogger("werkzeug").disabled = True  # nor is a render refused by the closing explorer
+            server.shutdown()  # the loop ends between two requests and closes the socket
+        finally:
+            explorer.close()
+            sock.close()
     print("smol-dsl explore: stopped", file=sys.stderr)
     return EXIT_OK
