@@ -9,7 +9,7 @@ import socket
 import sys
 import tempfile
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -103,7 +103,9 @@ def explore_runs(args: argparse.Namespace) -> int:
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="explore-server") as pool:
         serving = pool.submit(server.serve_forever)
         try:
-            serving.result()  # returns only if the loop fails, and raises its error here
+            while not serving.done():  # waits with a timeout: a wait without one may not see Ctrl-C
+                wait([serving], timeout=0.5)
+            serving.result()  # the loop ended by itself: it failed, and its error is raised here
         except KeyboardInterrupt:
             stopping.set()
             logging.getLogger("werkzeug").disabled = True  # nor is a render refused by the closing explorer
