@@ -236,13 +236,13 @@ def _mark_medians(runs: list[ExploredRun]) -> list[ExploredRun]:
     groups: dict[tuple[str, str], list[ExploredRun]] = {}
     for run in runs:
         groups.setdefault((run.record.task, run.record.schedule), []).append(run)
-    medians = {}
+    medians: dict[Path, str] = {}
     for (task, schedule), group in groups.items():
         if len(group) >= 2:
             metric = task_spec(task).default_metric
             chosen = median_run([run.record for run in group], metric)
-            medians[id(chosen)] = f"{schedule}'s {len(group)} runs by {metric}"
-    return [replace(run, median_of=medians.get(id(run.record), "")) for run in runs]
+            medians[chosen.directory] = f"{schedule}'s {len(group)} runs by {metric}"
+    return [replace(run, median_of=medians.get(run.record.directory, "")) for run in runs]
 
 
 def _finite(value: float) -> float | None:
