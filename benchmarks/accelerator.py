@@ -220,7 +220,7 @@ def full_reevaluation(part: RunnerPart, devices: list[jax.Device]) -> None:
 
     import smol_dsl
     from smol_dsl.runner.engine import shared_engine
-    from smol_dsl.runner.training import run_channels
+    from smol_dsl.runner.plan import run_channels
 
     config = part.config
     schedule = smol_dsl.load(part.schedules[0])

@@ -13,10 +13,10 @@ Names are loaded on first use, so `import smol_dsl.rundir` (reading run director
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from smol_dsl.errors import ScheduleError, UserInputError
+from smol_dsl.lazy import lazy_names
 
 if TYPE_CHECKING:
     from smol_dsl.language.certificates import Certificate
@@ -55,14 +55,4 @@ __all__ = [
     "parse",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

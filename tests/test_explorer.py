@@ -41,8 +41,8 @@ def server(explored_sweep, tmp_path_factory):
     """The explorer's app served on a free port of 127.0.0.1 in this process: its URL."""
     from werkzeug.serving import make_server
 
+    from smol_dsl.rescoring.replay import replay_elites
     from smol_dsl.results.explorer import Explorer, create_app
-    from smol_dsl.runner.replay import replay_elites
 
     explorer = Explorer([explored_sweep], replay=replay_elites, cache=tmp_path_factory.mktemp("gaits"))
     serving = make_server("127.0.0.1", 0, create_app(explorer), threaded=True)

@@ -1,6 +1,6 @@
 """The package's layers import downward only: language -> tasks -> qdax -> rundir -> runner ->
-results -> cli, annotation-only imports included (an import under TYPE_CHECKING still couples the
-modules). `errors` and `seeds` are the base every layer may use; the package's own names
+rescoring -> results -> cli, annotation-only imports included (an import under TYPE_CHECKING
+still couples the modules). `errors`, `seeds` and `lazy` are the base every layer may use; the package's own names
 (`smol_dsl.load`, `__version__`: its front door, over language and tasks) only the CLI."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent.parent / "smol_dsl"
-LAYERS = ("language", "tasks", "qdax", "rundir", "runner", "results", "cli")
-BASE = ("errors", "seeds")
+LAYERS = ("language", "tasks", "qdax", "rundir", "runner", "rescoring", "results", "cli")
+BASE = ("errors", "seeds", "lazy")
 
 
 def imported_modules(path: Path) -> list[tuple[int, str]]:

@@ -160,10 +160,10 @@ def test_reproduce_reports_on_the_directory_its_sweep_wrote(tmp_path, capsys, mo
     """The report reads the sweep's own output directory, --out's or the default."""
     from smol_dsl.cli import main
     from smol_dsl.cli import run as cli_run
+    from smol_dsl.rescoring.replay import replay_elites
     from smol_dsl.results import gaits
     from smol_dsl.results import report as results_report
     from smol_dsl.results import robustness as results_robustness
-    from smol_dsl.runner.replay import replay_elites
 
     swept, reported, drawn, measured = [], [], [], []
 

@@ -1,4 +1,4 @@
-"""`smol_dsl.runner.replay`: a finished run's elites rolled out again in the program that
+"""`smol_dsl.rescoring.replay`: a finished run's elites rolled out again in the program that
 scored its archive, each in its lane, give the archive's fitnesses and descriptors bit for
 bit (a run's and every run of a sweep trained together); where that program cannot be
 built again, the replay says why."""
@@ -12,9 +12,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from small_runs import copy_of
 
+from smol_dsl.rescoring.lanes import lane_batches
+from smol_dsl.rescoring.replay import replay_elites, replay_layout
 from smol_dsl.results.gaits import resolve_bodies
 from smol_dsl.rundir import ENVIRONMENT_FILE, load_archive, read_run
-from smol_dsl.runner.replay import lane_batches, replay_elites, replay_layout
 
 
 def replays_bit_for_bit(directory) -> int:

@@ -17,11 +17,11 @@ from PIL import Image
 from small_runs import CONFIG, cli
 
 import smol_dsl
+from smol_dsl.rescoring.perturbations import Perturbations, RobustnessError, check_perturbations
+from smol_dsl.rescoring.robustness import reinserted
 from smol_dsl.results.robustness import ROBUSTNESS_FILES, robustness_of, robustness_tables
 from smol_dsl.rundir import MEDIAN, RobustnessRow, RunDirectoryError, load_archive, read_robustness, read_run
 from smol_dsl.rundir.robustness import robustness_csv
-from smol_dsl.runner.perturbations import Perturbations, RobustnessError, check_perturbations
-from smol_dsl.runner.robustness import reinserted
 
 SCHEDULES = ("vanilla", "smol")
 SEEDS = (0, 1, 2)
@@ -304,8 +304,8 @@ def test_the_u_tests_compare_robust_coverage_and_kept_shares_per_perturbation():
 def test_one_scoring_program_serves_every_factor_and_start(measured, robust_sweep):
     """The body and the start are traced inputs: after three factors and two starts, the
     training program has compiled once (and the float path's program once)."""
+    from smol_dsl.rescoring.robustness import _float_path_engine, scoring_programs
     from smol_dsl.runner.engine import shared_engine
-    from smol_dsl.runner.robustness import _float_path_engine, scoring_programs
 
     runs = [read_run(p) for p in sorted(robust_sweep.glob("walker2d-*"))]
     (program,) = scoring_programs(runs)

@@ -68,8 +68,8 @@ def explore_runs(args: argparse.Namespace) -> int:
     from werkzeug.serving import make_server
 
     from smol_dsl.cli.run import use_cpu_cores_as_devices
+    from smol_dsl.rescoring.replay import replay_elites
     from smol_dsl.results.explorer import Explorer, create_app
-    from smol_dsl.runner.replay import replay_elites
 
     sock = bound_socket(args.port)  # before reading anything: a busy port is refused at once
     cache = Path(args.cache) if args.cache else Path(tempfile.gettempdir()) / "smol-dsl-explore"

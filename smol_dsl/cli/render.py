@@ -72,9 +72,9 @@ def render_run(args: argparse.Namespace) -> int:
     from smol_dsl.cli.run import use_cpu_cores_as_devices
 
     use_cpu_cores_as_devices()  # the devices the run trained on: its scoring program, bit for bit
+    from smol_dsl.rescoring.replay import replay_elites
     from smol_dsl.results import gait_video, gaits
     from smol_dsl.rundir import RunDirectoryError, load_archive, read_run
-    from smol_dsl.runner.replay import replay_elites
     from smol_dsl.tasks import task_spec
 
     directory = _run_directory(Path(args.run_dir))

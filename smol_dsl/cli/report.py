@@ -90,7 +90,7 @@ def write_report(args: argparse.Namespace) -> int:
     replay = None
     if gaits:
         from smol_dsl.cli.run import use_cpu_cores_as_devices
-        from smol_dsl.runner.replay import replay_elites
+        from smol_dsl.rescoring.replay import replay_elites
 
         use_cpu_cores_as_devices()  # as the runs trained: their scoring programs (see `smol-dsl render`)
         replay = replay_elites

@@ -97,8 +97,8 @@ class Reproduce(Sweep):
 
     def report(self, out: Path) -> str:
         """Write the report of the sweep in `out` into out/report; what to print of it."""
+        from smol_dsl.rescoring.replay import replay_elites
         from smol_dsl.results import report as results_report
-        from smol_dsl.runner.replay import replay_elites
 
         replay = replay_elites if self.gaits else None
         if self.robustness:  # robustness.csv beside the runs: the report adds it

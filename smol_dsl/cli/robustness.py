@@ -14,13 +14,13 @@ from smol_dsl.errors import counted
 if TYPE_CHECKING:
     import argparse
 
-    from smol_dsl.runner.perturbations import Perturbations
+    from smol_dsl.rescoring.perturbations import Perturbations
 
 MOST_FACTORS = 1000
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
-    from smol_dsl.runner.perturbations import DEFAULT_FACTORS, DEFAULT_STARTS
+    from smol_dsl.rescoring.perturbations import DEFAULT_FACTORS, DEFAULT_STARTS
 
     command = commands.add_parser(
         "robustness",
@@ -94,7 +94,7 @@ def body_factors(spec: str) -> tuple[str, tuple[float, ...]]:
 
 def perturbations_of(args: argparse.Namespace) -> Perturbations:
     """The perturbations the command line asks for."""
-    from smol_dsl.runner.perturbations import Perturbations
+    from smol_dsl.rescoring.perturbations import Perturbations
 
     if args.no_body and args.body:
         raise UsageError("--no-body and --body: give one of them")

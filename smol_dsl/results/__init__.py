@@ -11,7 +11,7 @@ and report, and every figure.
 - `report`: `write_report(paths, out_dir)` writes the table with the figures and
   `page`'s index.html (`smol-dsl report`), into a directory `output` checks and writes;
 - `robustness`: `measure_and_write(paths, out_dir)` re-scores final archives under
-  perturbations (`smol_dsl.runner.robustness`) and writes robustness.csv, its tables with
+  perturbations (`smol_dsl.rescoring.robustness`) and writes robustness.csv, its tables with
   U-tests and its figure (`smol-dsl robustness`), which the report adds to its own;
 - `figures`: what every figure shares (line styles, legends, `save_figure`);
 - `run_figures`: `save_run_figures(directory)` draws a finished run directory's metrics.png
@@ -29,8 +29,9 @@ load them, and `schedule_figures` imports JAX only to evaluate schedules (`sched
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from smol_dsl.lazy import lazy_names
 
 if TYPE_CHECKING:
     from smol_dsl.results.report import write_report
@@ -62,14 +63,4 @@ __all__ = [
     "write_report",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

@@ -9,7 +9,7 @@ In the list, each schedule's run that the report shows (its median, `median_run`
 
 A click on a cell renders the final archive's elite in that cell (the snapshots hold no
 policies) in the bodies asked for, through the same rollout as `render`
-(`smol_dsl.runner.replay.replay_elites`, handed down by the command line), into a GIF cached
+(`smol_dsl.rescoring.replay.replay_elites`, handed down by the command line), into a GIF cached
 on disk by run, cell and bodies: a second click on it is served from the cache. Renders run
 one at a time in a worker thread; up to `MOST_QUEUED` wait, and more are refused with a
 message (HTTP 503), so a burst of clicks keeps the server answering with bounded memory.

@@ -2,7 +2,7 @@
 the archive), rolled out in a body and drawn by MuJoCo's renderer.
 
 `render_gaits(run, archive, cells, bodies, replay=...)` draws elites of a finished run as
-`replay` rolls them out (`smol_dsl.runner.replay.replay_elites`, which the caller hands down:
+`replay` rolls them out (`smol_dsl.rescoring.replay.replay_elites`, which the caller hands down:
 the runner's own rollout, the run's episode start, a body of its schedule), with
 `mujoco.Renderer` through the model's tracking camera: a `Gait` (its frames, fitness and
 descriptor) per elite and body, which `smol_dsl.results.gait_video` tiles and writes.
@@ -48,7 +48,7 @@ class RenderError(UserInputError):
 
 
 class ReplayElites(Protocol):
-    """How `render_gaits` has elites rolled out: `smol_dsl.runner.replay.replay_elites`,
+    """How `render_gaits` has elites rolled out: `smol_dsl.rescoring.replay.replay_elites`,
     handed down by the caller, since rolling out needs the runner's engine. It returns `model`
     (the task's MuJoCo model), `dt` (seconds per environment step), `inexact` (why fitnesses
     may differ from the archive's by rounding, or None) and, by (cell, the body's index),

@@ -215,14 +215,14 @@ def gait_files(
     groups: dict[str, list[RunRecord]], metric: str, count: int, replay: ReplayElites | None
 ) -> list[tuple[str, bytes, str]]:
     """Per schedule, a GIF of `count` elites of its median run in the final body, rolled out
-    by `replay` (`smol_dsl.runner.replay.replay_elites`): (file name, GIF, caption). Imports
+    by `replay` (`smol_dsl.rescoring.replay.replay_elites`): (file name, GIF, caption). Imports
     the renderer (MuJoCo) only when called."""
     from smol_dsl.results import gaits as rendering
     from smol_dsl.results.gait_video import gif_bytes
     from smol_dsl.rundir import load_archive
 
     if replay is None:
-        raise ValueError("rendering gaits needs `replay`: give replay=smol_dsl.runner.replay.replay_elites")
+        raise ValueError("rendering gaits needs `replay`: give replay=smol_dsl.rescoring.replay.replay_elites")
     shown = []
     for index, (name, runs) in enumerate(groups.items()):
         run = median_run(runs, metric)
@@ -263,7 +263,7 @@ def write_report(
     """Table (table.md, pvalues.tex), final scores (scores.csv) and figures (PNG and PDF)
     of the runs below `paths`, with index.html showing them and (`gaits` > 0) that many elites
     of each schedule's median run (rolled out by `replay`, which gaits need:
-    `smol_dsl.runner.replay.replay_elites`), written into out_dir.
+    `smol_dsl.rescoring.replay.replay_elites`), written into out_dir.
 
     Every run is read and checked, and every file drawn, before the first file is written;
     each file is written atomically. `robustness` adds `smol-dsl robustness`'s measurements of
@@ -272,7 +272,7 @@ def write_report(
     (ReportError) unless `force`, which replaces it (files of the earlier report that this one
     does not write, such as an ablation figure, are removed)."""
     if gaits > 0 and replay is None:  # before anything is read
-        raise ValueError("rendering gaits needs `replay`: give replay=smol_dsl.runner.replay.replay_elites")
+        raise ValueError("rendering gaits needs `replay`: give replay=smol_dsl.rescoring.replay.replay_elites")
     earlier = check_output_directory(out_dir, force)
     groups = load_runs(paths, allow_mixed_environments)
     table = pvalue_table(groups, metric)

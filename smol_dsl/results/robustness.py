@@ -30,8 +30,8 @@ from smol_dsl.rundir import MEDIAN, ROBUSTNESS_FILE, RobustnessRow, read_robustn
 from smol_dsl.rundir.robustness import robustness_csv
 
 if TYPE_CHECKING:
+    from smol_dsl.rescoring.perturbations import Perturbations
     from smol_dsl.rundir import RunRecord
-    from smol_dsl.runner.perturbations import Perturbations
 
 ROBUSTNESS_FILES = ("robustness.csv", "robustness.md", "robustness.tex", "robustness.png", "robustness.pdf")
 """What `smol-dsl robustness` writes (robustness.csv is `smol_dsl.rundir`'s ROBUSTNESS_FILE)."""
@@ -391,13 +391,13 @@ def measure_and_write(
     progress: Callable[[str], None] | None = None,
 ) -> RobustnessReport:
     """Re-score the final archives of the finished runs below `paths` under `perturbations`
-    (`smol_dsl.runner.robustness`) and write robustness.csv, .md, .tex, .png and .pdf into
+    (`smol_dsl.rescoring.robustness`) and write robustness.csv, .md, .tex, .png and .pdf into
     `out_dir`, together and atomically. Everything is checked before anything is measured
     (the output directory, the runs as `report` checks them, the perturbations), and
     measured before anything is written."""
+    from smol_dsl.rescoring.perturbations import DEFAULT_PERTURBATIONS, check_perturbations
+    from smol_dsl.rescoring.robustness import measure_robustness
     from smol_dsl.results.runs import load_runs
-    from smol_dsl.runner.perturbations import DEFAULT_PERTURBATIONS, check_perturbations
-    from smol_dsl.runner.robustness import measure_robustness
 
     perturbations = perturbations if perturbations is not None else DEFAULT_PERTURBATIONS
     check_robustness_output(out_dir, force)

@@ -28,7 +28,7 @@ GENOTYPES = "genotypes/"
 LANES = "lanes"
 """archive.npz's (C,) int32 array of each elite's lane, its position in the batch it was
 scored in (-1 where unknown: archives written before runs kept them); a replay in the same
-program and lane gives the archive's fitness bit for bit (`smol_dsl.runner.replay`)."""
+program and lane gives the archive's fitness bit for bit (`smol_dsl.rescoring.replay`)."""
 
 
 def policy_shapes(task: str, config: RunConfig, cells: int) -> dict[str, tuple[int, ...]] | None:

@@ -60,7 +60,7 @@ def scoring_layout(runs: int, index: int, runs_per_step: int | None, channels: S
     together (1 for `smol-dsl run`), its `index` among them, the runs a device advanced at
     once (`runs_per_step`; None: all) and the `channels` of the bodies the program took
     (the union of those runs' schedules'). With the record's device count, that program can
-    be built again (`smol_dsl.runner.replay`)."""
+    be built again (`smol_dsl.rescoring.replay`)."""
     return {"runs": runs, "index": index, "runs_per_step": runs_per_step, "channels": list(channels)}
 
 

@@ -1,6 +1,7 @@
 """The bundled Brax MAP-Elites runner: phased training while a schedule changes the body.
 
-Modules, one concept each: `config` (the checks of a run's settings; no JAX),
+Modules, one concept each: `config` (the checks of a run's settings; no JAX), `plan`
+(what is to be trained: `PlannedRun` and the checks of the runs before anything is made),
 `map_elites` (one run's step on QDax), `layout` (runs and populations on devices; no JAX),
 `engine` (that step over runs and devices), `core` (the algorithm: pure functions that
 start every run's state, advance it a generation and take it across a phase boundary),
@@ -8,17 +9,15 @@ start every run's state, advance it a generation and take it across a phase boun
 (the one entry: a run or a sweep planned, checked and sized once, then trained; `run` is a
 sweep of one), `directories` (setting up, locking and checking run and
 sweep directories), `checkpoint`, `lock`, `footprint` (memory), `estimate` (`--dry-run`'s
-measurement), `progress` (the bar), `replay` (elites of a finished run rolled out again,
-for drawing their gaits). A run directory's files are `smol_dsl.rundir`'s (RunConfig and the
+measurement), `progress` (the bar). Finished runs are scored again by `smol_dsl.rescoring`,
+the layer above. A run directory's files are `smol_dsl.rundir`'s (RunConfig and the
 presets included); figures are drawn from them after training (`smol_dsl.results.run_figures`).
 Importing this package imports JAX only when an entry point is used.
 """
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
-
+from smol_dsl.lazy import lazy_names
 from smol_dsl.rundir.config import RunConfig
 from smol_dsl.rundir.presets import PRESETS, preset_config
 from smol_dsl.runner.config import ConfigError, RunError, check_config
@@ -47,8 +46,4 @@ __all__ = [
     "schedule_key",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, __all__)

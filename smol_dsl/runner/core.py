@@ -14,6 +14,12 @@ shows progress. `smol_dsl.runner.training` is the host loop around it, which doe
             state, outcome = cross_boundary(engine, course, state, phase)
         state, outcome = train_generation(engine, course, state)
 
+Pure, but not copying: the archives of the state given to `train_generation` and
+`cross_boundary` are donated to XLA (updated in place, as QDax's users donate a
+repertoire to a jitted update), so the state given is consumed and only the state returned
+may be used afterwards; keep a host copy (`smol_dsl.runner.checkpoint.host_copy`) of any
+state you need again.
+
 The state's arrays have the runs axis first, padded to the engine's runs axis with copies
 of the last run (`Course.seeds`); its counters are those of the real runs only. Every
 function takes the keys as `MAPElites.update` does (`key, sub = split(key)` per generation
@@ -43,7 +49,7 @@ if TYPE_CHECKING:
     from smol_dsl.rundir.checkpoint import RunState
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.runner.engine import Engine
-    from smol_dsl.runner.training import PlannedRun
+    from smol_dsl.runner.plan import PlannedRun
 
 
 @dataclass(frozen=True)

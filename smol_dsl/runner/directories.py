@@ -41,7 +41,7 @@ from smol_dsl.runner.lock import DirectoryLock
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
-    from smol_dsl.runner.training import PlannedRun
+    from smol_dsl.runner.plan import PlannedRun
 
 
 def schedule_stem(schedule: Schedule) -> str:

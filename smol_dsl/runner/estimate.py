@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
     from smol_dsl.language.schedule import Schedule
     from smol_dsl.rundir.config import RunConfig
-    from smol_dsl.runner.training import PlannedRun
+    from smol_dsl.runner.plan import PlannedRun
 
 TIMED_GENERATIONS = 3  # generations timed after the first (which compiles)
 ENOUGH_SECONDS = 10.0  # stop timing generations once they have taken this long
@@ -223,7 +223,7 @@ class _Warmup:
         from smol_dsl.qdax.scoring import cvt_centroids, seed_keys
         from smol_dsl.runner.core import plan_course
         from smol_dsl.runner.engine import shared_engine
-        from smol_dsl.runner.training import run_channels
+        from smol_dsl.runner.plan import run_channels
         from smol_dsl.tasks import task_spec
 
         self.clock, self.batch_size = clock, config.batch_size

@@ -27,7 +27,8 @@ from smol_dsl.runner.config import RunError
 from smol_dsl.runner.directories import out_path, prepare_run_directory, prepare_sweep_directory, schedule_stem
 from smol_dsl.runner.engine import shared_engine
 from smol_dsl.runner.footprint import Footprint, fit_sweep
-from smol_dsl.runner.training import PlannedRun, Progress, RunResult, check_runs, run_channels, train
+from smol_dsl.runner.plan import PlannedRun, check_runs, run_channels
+from smol_dsl.runner.training import Progress, RunResult, train
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule

@@ -28,7 +28,6 @@ import jax
 import numpy as np
 
 from smol_dsl import rundir
-from smol_dsl.errors import Setting
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.qdax.phases import phase_of_generation
 from smol_dsl.rundir import CHECKPOINT_FILE, MetricsLog
@@ -42,7 +41,7 @@ from smol_dsl.runner.checkpoint import (
     save_checkpoint,
     storage_error,
 )
-from smol_dsl.runner.config import ConfigError, RunError, check_config
+from smol_dsl.runner.config import RunError
 from smol_dsl.runner.core import (
     Course,
     Outcome,
@@ -54,13 +53,11 @@ from smol_dsl.runner.core import (
     start,
     train_generation,
 )
-from smol_dsl.tasks import task_spec
 
 if TYPE_CHECKING:
-    from smol_dsl.language.schedule import Schedule
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.runner.engine import Engine
-    from smol_dsl.tasks.base import Task
+    from smol_dsl.runner.plan import PlannedRun
 
 RANDOM_STREAMS = "keys split as QDax's MAPElites.update splits them"
 """How a run's key becomes its offspring's, recorded in checkpoints: a checkpoint of another
@@ -68,16 +65,6 @@ way is refused rather than resumed into a run that follows neither."""
 
 Progress = Callable[[list[dict[str, Any]], int], None]
 """progress(the latest metrics row of every run, total generations)."""
-
-
-@dataclass(frozen=True)
-class PlannedRun:
-    """One run to train: its schedule, settings (with its seed), name and run directory."""
-
-    schedule: Schedule
-    config: RunConfig
-    name: str
-    directory: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -103,33 +90,6 @@ class RunResult:
         if GEAR in self.channels:
             return self.bodies[:, self.channels.index(GEAR)]
         return np.ones(len(self.bodies), self.bodies.dtype)
-
-
-def run_channels(schedules: list[Schedule]) -> tuple[Channel, ...]:
-    """Every channel the schedules declare, in order of first appearance: the traced body of
-    runs trained together (a run's value for a channel its schedule lacks is 1)."""
-    return tuple(dict.fromkeys(channel for schedule in schedules for channel in schedule.channels))
-
-
-def check_runs(task: Task | str, schedules: list[Schedule], config: RunConfig) -> None:
-    """What `smol-dsl run` and `sweep` refuse, refused for the Python API alike, before anything
-    is created or compiled: a located ScheduleError for a schedule whose channels name parts
-    the task's body lacks, a ConfigError (`check_config`) for settings that cannot make a fair
-    run, and one for a task that is not the config's (its name or episode length)."""
-    spec = task_spec(task) if isinstance(task, str) else task.spec
-    if spec.name != config.task:
-        raise ConfigError(
-            f"the task is {spec.name} but the config's is {config.task}; make the config for {spec.name} "
-            f"(preset_config({spec.name!r}, ...)) or pass task={config.task!r}"
-        )
-    if not isinstance(task, str) and task.episode_length != config.episode_length:
-        raise ConfigError(
-            f"the task's episodes are {task.episode_length} steps but the config's "
-            + Setting("episode_length")
-            + f" is {config.episode_length}; build the task with the config's, or pass the task by name"
-        )
-    for schedule in schedules:
-        check_config(config, schedule)  # the schedule against the task's body too: the config's task is this one
 
 
 def owner(runs: list[PlannedRun], config: RunConfig) -> dict[str, Any]:

@@ -11,6 +11,7 @@ import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from smol_dsl.lazy import lazy_names
 from smol_dsl.tasks.anatomy import Anatomy
 from smol_dsl.tasks.catalog import ANT_OMNI, ANT_UNI, HALFCHEETAH, HOPPER, WALKER2D
 from smol_dsl.tasks.registry import PRESET_NAMES, TaskSpec, make_task, register, task_names, task_spec
@@ -79,10 +80,4 @@ __all__ = [
     "task_spec",
 ]
 
-
-def __getattr__(name: str) -> object:
-    if name == "Task":  # the built task's class lives with JAX and Brax
-        from smol_dsl.tasks.base import Task
-
-        return Task
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_names(__name__, {"Task": "smol_dsl.tasks.base"}, __all__)  # with JAX and Brax

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from smol_dsl.rescoring.lanes import lane_batches, lane_index
 from smol_dsl.rundir import (
     describe_environment,
     environment_differences,
@@ -112,31 +113,6 @@ def replay_layout(run: RunRecord) -> ReplayLayout:
     )
 
 
-def lane_batches(cells: Sequence[int], lanes: np.ndarray | None, batch_size: int) -> list[dict[int, int]]:
-    """The cells packed into batches, each a {lane: cell}: every cell in its own lane
-    (`lanes[cell]`) where it is known (>= 0 and in the batch), the others in free lanes;
-    no more batches than needed for the cells that share a lane."""
-    batches: list[dict[int, int]] = []
-    loose = []
-    for cell in dict.fromkeys(int(c) for c in cells):
-        lane = int(lanes[cell]) if lanes is not None else -1
-        if not 0 <= lane < batch_size:
-            loose.append(cell)
-            continue
-        batch = next((b for b in batches if lane not in b), None)
-        if batch is None:
-            batch = {}
-            batches.append(batch)
-        batch[lane] = cell
-    for cell in loose:
-        batch = next((b for b in batches if len(b) < batch_size), None)
-        if batch is None:
-            batch = {}
-            batches.append(batch)
-        batch[next(lane for lane in range(batch_size) if lane not in batch)] = cell
-    return batches
-
-
 def replay_elites(
     run: RunRecord,
     archive: Archive,
@@ -176,8 +152,7 @@ def replay_elites(
         row = [body.get(channel.name, 1.0) for channel in scoring.channels]
         factors = np.asarray([row] * runs, dtype=np.float32)
         for chunk in lane_batches(cells, archive.lanes, batch):
-            first = next(iter(chunk.values()))
-            index = [chunk.get(lane, first) for lane in range(batch)]
+            index, _ = lane_index(chunk, batch)
             one = jax.tree.map(lambda x, index=index: np.asarray(x)[index], archive.genotypes)
             genotypes = jax.tree.map(lambda x: np.broadcast_to(x, (runs, *x.shape)), one)
             fitnesses, descriptors = scoring.score(genotypes, factors, start)

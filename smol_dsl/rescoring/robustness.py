@@ -17,7 +17,7 @@ and max fitness are the robust ones (the row whose sample is `median`).
 - `starts`: other episode starts drawn from the task's reset distribution, K of them.
 
 Bodies and starts are scored by the very program the run trained with, rebuilt from
-environment.json's layout with every elite in its lane (`smol_dsl.runner.replay`), the body
+environment.json's layout with every elite in its lane (`smol_dsl.rescoring.replay`), the body
 and the start traced inputs: one compilation for every factor and start, and a body factor
 of 1 reproduces the archive bit for bit, so that what a sample measures is its
 perturbation and nothing else. The runs of a sweep are scored together, as they trained.
@@ -36,8 +36,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smol_dsl.errors import counted
-from smol_dsl.rundir import MEDIAN, RobustnessRow, load_archive
-from smol_dsl.runner.perturbations import (
+from smol_dsl.rescoring.lanes import lane_chunks
+from smol_dsl.rescoring.perturbations import (
     BODY,
     DEFAULT_PERTURBATIONS,
     FLOAT_PATH,
@@ -45,6 +45,7 @@ from smol_dsl.runner.perturbations import (
     Perturbations,
     check_perturbations,
 )
+from smol_dsl.rundir import MEDIAN, RobustnessRow, load_archive
 
 if TYPE_CHECKING:
     from smol_dsl.language.channels import Channel
@@ -92,8 +93,8 @@ def scoring_programs(runs: Sequence[RunRecord]) -> list[ScoringProgram]:
     """The runs grouped by the program that scored their archives (`replay_layout`); runs
     whose program cannot be built again here (`inexact`) share one program of their own
     settings, laid out for all of them."""
+    from smol_dsl.rescoring.replay import replay_layout
     from smol_dsl.runner.layout import default_runs_per_step
-    from smol_dsl.runner.replay import replay_layout
 
     exact: dict[str, tuple[Any, list[tuple[int, RunRecord]]]] = {}
     loose: dict[str, list[RunRecord]] = {}
@@ -266,26 +267,8 @@ def _other_starts(slots: _Slots, number: int) -> Any:
 
 
 def _lane_chunks(slots: _Slots, batch_size: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Batches of every position's filled cells with each elite in its lane (`lane_batches`):
-    per batch, cell indices and which are real, both (positions, batch_size)."""
-    from smol_dsl.runner.replay import lane_batches
-
-    per_position = [
-        lane_batches(cells, archive.lanes, batch_size)
-        for cells, archive in zip(slots.filled, slots.archives, strict=True)
-    ]
-    chunks = []
-    for number in range(max(len(batches) for batches in per_position)):
-        index = np.zeros((len(per_position), batch_size), dtype=np.int64)
-        valid = np.zeros((len(per_position), batch_size), dtype=bool)
-        for position, batches in enumerate(per_position):
-            if number < len(batches):
-                batch = batches[number]
-                first = next(iter(batch.values()))
-                index[position] = [batch.get(lane, first) for lane in range(batch_size)]
-                valid[position] = [lane in batch for lane in range(batch_size)]
-        chunks.append((index, valid))
-    return chunks
+    """Batches of every position's filled cells with each elite in its lane (`lane_chunks`)."""
+    return lane_chunks(slots.filled, [archive.lanes for archive in slots.archives], batch_size)
 
 
 def _cell_chunks(slots: _Slots, batch_size: int) -> list[tuple[np.ndarray, np.ndarray]]:
