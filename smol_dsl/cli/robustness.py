@@ -16,11 +16,9 @@ if TYPE_CHECKING:
 
     from smol_dsl.rescoring.perturbations import Perturbations
 
-MOST_FACTORS = 1000
-
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
-    from smol_dsl.rescoring.perturbations import DEFAULT_FACTORS, DEFAULT_STARTS
+    from smol_dsl.rescoring.perturbations import DEFAULT_BODIES, DEFAULT_STARTS, MOST_SAMPLES
 
     command = commands.add_parser(
         "robustness",
@@ -29,10 +27,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "searched recursively) under perturbations, each into a fresh archive: body factors around the final "
         "body, the same body in another layout of the program (the float path), and other episode starts. "
         "Writes robustness.csv (per run, perturbation and sample: the cells still filled, the elites that kept "
-        "their cell, moved, collided or died, and each perturbation's robust coverage and max fitness, QDax's "
-        "corrected-repertoire median over its samples), robustness.md and .tex (median and IQR per schedule, "
-        "one-sided U-tests on robust coverage) and robustness.png and .pdf. `smol-dsl report` adds them to its "
-        "page when robustness.csv is in a DIR it reports on. See docs/robustness.md.",
+        "their cell, moved, collided or died, and each perturbation's robust coverage, share and max fitness, "
+        "QDax's corrected-repertoire median over its samples, an odd number of them), robustness.md and .tex "
+        "(median and IQR per schedule, one-sided tests paired by seed, Holm-adjusted) and robustness.png and .pdf. "
+        "`smol-dsl report` adds them to its page when robustness.csv is in a DIR it reports on. "
+        "See docs/robustness.md.",
     )
     command.add_argument("dirs", nargs="+", metavar="DIR", help="sweep or run directories of finished runs")
     command.add_argument(
@@ -42,9 +41,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--body",
         action="append",
         metavar="CHANNEL=FACTORS",
-        help="factors of a channel of the schedules, times the final body's: a list (gear=0.9,1.1) or "
-        "LOW:HIGH:N, N factors evenly spaced (gear=0.8:1.2:9); repeat for other channels (default: gear="
-        + ",".join(f"{f:g}" for f in DEFAULT_FACTORS)
+        help="a family of factors of a channel of the schedules, times the final body's, whose corrected archive "
+        "takes each elite's median over them: a list (gear=0.9,0.95,0.99) or LOW:HIGH:N, N factors evenly spaced "
+        "(gear=0.8:0.98:7); an odd number of them, and x1 (the final body, a control) only alone; repeat for "
+        "other families or channels (default: "
+        + " ".join(f"{channel}=" + ",".join(f"{f:g}" for f in factors) for channel, factors in DEFAULT_BODIES)
         + ")",
     )
     command.add_argument("--no-body", action="store_true", help="no body perturbation")
@@ -53,11 +54,17 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         type=count,
         default=DEFAULT_STARTS,
         metavar="K",
-        help=f"other episode starts, drawn from the task's reset distribution (default {DEFAULT_STARTS})",
+        help=f"other episode starts, drawn from the task's reset distribution: an odd number, at most "
+        f"{MOST_SAMPLES} (default {DEFAULT_STARTS})",
     )
     command.add_argument("--no-starts", action="store_true", help="no other episode starts")
     command.add_argument("--no-float-path", action="store_true", help="no re-scoring by another program layout")
     command.add_argument("--force", action="store_true", help="replace earlier robustness files in the output")
+    command.add_argument(
+        "--finished-only",
+        action="store_true",
+        help="measure the finished runs below DIR and leave out those that have not finished (or started)",
+    )
     command.add_argument(
         "--allow-mixed-environments",
         action="store_true",
@@ -70,7 +77,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def body_factors(spec: str) -> tuple[str, tuple[float, ...]]:
     """`CHANNEL=F1,F2,...` or `CHANNEL=LOW:HIGH:N` as (channel name, factors); a UsageError
     saying what a --body takes otherwise."""
-    example = "e.g. --body gear=0.9,1.1 or --body gear=0.8:1.2:9"
+    from smol_dsl.rescoring.perturbations import MOST_SAMPLES
+
+    example = "e.g. --body gear=0.9,0.95,0.99 or --body gear=0.8:0.98:7"
     channel, equals, factors = spec.partition("=")
     if not equals or not channel.strip() or not factors.strip():
         raise UsageError(f"--body {spec}: give CHANNEL=FACTORS, {example}")
@@ -78,8 +87,8 @@ def body_factors(spec: str) -> tuple[str, tuple[float, ...]]:
         if ":" in factors:
             low, high, number = factors.split(":")
             steps = int(number)
-            if not 1 <= steps <= MOST_FACTORS:
-                raise UsageError(f"--body {spec}: N is a number of factors from 1 to {MOST_FACTORS}, not {steps}")
+            if not 1 <= steps <= MOST_SAMPLES:
+                raise UsageError(f"--body {spec}: N is a number of factors from 1 to {MOST_SAMPLES}, not {steps}")
             start, stop = float(low), float(high)
             values = [start] if steps == 1 else [start + (stop - start) * k / (steps - 1) for k in range(steps)]
         else:
@@ -107,6 +116,7 @@ def perturbations_of(args: argparse.Namespace) -> Perturbations:
 
 def measure_robustness(args: argparse.Namespace) -> int:
     from smol_dsl.results import robustness as results_robustness
+    from smol_dsl.results.robustness_tables import summary_markdown
 
     if args.out is None and len(args.dirs) > 1:
         raise UsageError("with several DIRs, say where robustness.csv goes with -o OUT")
@@ -124,11 +134,13 @@ def measure_robustness(args: argparse.Namespace) -> int:
         perturbations,
         force=args.force,
         allow_mixed_environments=args.allow_mixed_environments,
+        finished_only=args.finished_only,
         progress=progress,
     )
     robustness = report.robustness
     runs = len({row.directory for row in robustness.rows})
-    print(f"{robustness.task}, {counted(runs, 'run')}:\n")
-    print(results_robustness.summary_markdown(robustness))
+    left_out = f" ({counted(len(report.left_out), 'unfinished run')} left out)" if report.left_out else ""
+    print(f"{robustness.task}, {counted(runs, 'run')}{left_out}:\n")
+    print(summary_markdown(robustness))
     print(f"wrote {', '.join(str(f) for f in report.files)}")
     return EXIT_OK

@@ -1,11 +1,18 @@
 """What `smol-dsl robustness` perturbs, and the checks that refuse what cannot be measured
-before anything is: `Perturbations` (bodies per channel, other episode starts, the float
-path), their names as robustness.csv's `perturbation` column writes them, and
-`check_perturbations`. Imports no JAX."""
+before anything is: `Perturbations` (families of body factors per channel, other episode
+starts, the float path), their names as robustness.csv's `perturbation` column writes them,
+what measuring them costs (`estimate`), and `check_perturbations`. Imports no JAX.
+
+Each perturbation is a family of samples whose corrected archive takes every elite's median
+over them (`smol_dsl.rescoring.robustness.median_of_samples`), so a family has an odd number
+of samples: its median is then one sample's result, not the midpoint of two. A body family
+never mixes x1 (the final body itself: a control, not a change) with changes of it.
+"""
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -17,10 +24,17 @@ if TYPE_CHECKING:
     from smol_dsl.language.channels import Channel
     from smol_dsl.rundir import RunRecord
 
-DEFAULT_FACTORS = (0.9, 0.95, 0.99, 0.9944, 1.0056, 1.01, 1.05, 1.1)
-"""Body factors around the final body: the paper's SMOL step from one phase to the next
-(alpha 1.5 to 1 over 90 phases: 0.56%) each way, and changes of 1, 5 and 10%."""
-DEFAULT_STARTS = 8
+DEFAULT_BODIES = (("gear", (0.9, 0.95, 0.9944)), ("gear", (1.0056, 1.05, 1.1)))
+"""Two families of body factors around the final body, one each way: the paper's SMOL step
+from one phase to the next (alpha 1.5 to 1 over 90 phases: 0.56%), 5% and 10% less gear, and
+as much more. One way each, so that a family's median is not the cancelling of a change and
+its opposite; three factors each, so that it is one factor's result."""
+DEFAULT_FACTORS = tuple(factor for _, factors in DEFAULT_BODIES for factor in factors)
+DEFAULT_STARTS = 9
+MOST_SAMPLES = 999
+"""The most samples one perturbation takes (body factors of a family, or starts)."""
+MEMORY_SHARE = 0.5
+"""The share of the machine's memory the samples' scores, held for the medians, may take."""
 BODY = "body"
 FLOAT_PATH = "float path"
 STARTS = "starts"
@@ -30,13 +44,28 @@ class RobustnessError(UserInputError):
     """Runs or perturbations that `smol-dsl robustness` cannot measure."""
 
 
+def body_name(channel: str, factors: Sequence[float]) -> str:
+    """A body family's name, as robustness.csv's `perturbation` column writes it: `body gear
+    x1.05` for one factor, `body gear x0.9-0.9944` for factors from 0.9 to 0.9944."""
+    low, high = min(factors), max(factors)
+    return f"{BODY} {channel} x{low:g}" + ("" if low == high else f"-{high:g}")
+
+
+def channel_of(perturbation: str) -> str | None:
+    """The channel of a body family's name (`body_name`); None for another perturbation."""
+    if not perturbation.startswith(f"{BODY} "):
+        return None
+    return perturbation.removeprefix(f"{BODY} ").rsplit(" ", 1)[0]
+
+
 @dataclass(frozen=True)
 class Perturbations:
-    """What to re-score every final archive under: `bodies`, (channel name, factors) pairs,
-    each factor multiplying that channel's final factor; `starts` other episode starts (0:
-    none); `float_path`, the same body in another program."""
+    """What to re-score every final archive under: `bodies`, families of body factors as
+    (channel name, factors) pairs, each factor multiplying that channel's final factor (a
+    channel may have several families); `starts` other episode starts (0: none);
+    `float_path`, the same body in another program."""
 
-    bodies: tuple[tuple[str, tuple[float, ...]], ...] = (("gear", DEFAULT_FACTORS),)
+    bodies: tuple[tuple[str, tuple[float, ...]], ...] = DEFAULT_BODIES
     starts: int = DEFAULT_STARTS
     float_path: bool = True
 
@@ -44,17 +73,78 @@ class Perturbations:
     def names(self) -> list[str]:
         """The perturbations, as robustness.csv's `perturbation` column names them."""
         return (
-            [f"{BODY} {channel}" for channel, _ in self.bodies]
+            [body_name(_canonical(channel), factors) for channel, factors in self.bodies]
             + ([FLOAT_PATH] if self.float_path else [])
             + ([STARTS] if self.starts else [])
         )
 
+    @property
+    def samples(self) -> int:
+        """How many times each elite is scored: every body factor, every start, the float path."""
+        return sum(len(factors) for _, factors in self.bodies) + self.starts + int(self.float_path)
+
+    @property
+    def largest(self) -> int:
+        """The most samples of one perturbation: how many scores of each elite a median holds."""
+        return max([len(factors) for _, factors in self.bodies] + [self.starts, int(self.float_path)])
+
+
+def _canonical(name: str) -> str:
+    from smol_dsl.language.channels import Channel
+
+    try:
+        return Channel.parse(name).name
+    except (ValueError, TypeError):
+        return str(name)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What measuring costs: `episodes` rolled out (every elite of every run once per
+    sample), and `held_bytes`, the scores the largest perturbation's median holds at once."""
+
+    runs: int
+    samples: int
+    episodes: int
+    episode_length: int
+    held_bytes: int
+
+    def __str__(self) -> str:
+        return (
+            f"{counted(self.runs, 'run')}, {counted(self.samples, 'sample')} each: {self.episodes:,} episodes of "
+            f"{self.episode_length} steps to score, about {_size(self.held_bytes)} of scores held for the medians"
+        )
+
+
+def estimate(runs: Sequence[RunRecord], perturbations: Perturbations) -> Estimate:
+    """The episodes to score and the memory the medians hold, for finished `runs`."""
+    elites = sum(int(run.final_archive().filled.sum()) for run in runs)
+    cells = sum(run.config.num_centroids * (1 + task_spec(run.task).descriptor_size) for run in runs)
+    return Estimate(
+        runs=len(runs),
+        samples=perturbations.samples,
+        episodes=elites * perturbations.samples,
+        episode_length=runs[0].config.episode_length if runs else 0,
+        held_bytes=4 * cells * perturbations.largest,
+    )
+
+
+def machine_memory() -> int | None:
+    """The machine's physical memory in bytes, where the system says."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
 
 def check_perturbations(runs: Sequence[RunRecord], perturbations: Perturbations) -> None:
     """A RobustnessError for what cannot be measured, before anything is: no runs, a run that
-    has not finished, nothing to measure, a start count below 0, a body factor that is not
-    finite and above 0 or given twice, a channel a run's schedule lacks, and a perturbed
-    body outside what the task's physics takes (`smol-dsl check --task`'s ranges)."""
+    has not finished, nothing to measure, a start count that is not odd from 1 to
+    MOST_SAMPLES (or 0), a body family that is empty, has an even number of factors or over
+    MOST_SAMPLES, mixes x1 with changes, or holds a factor that is not finite and above 0 or
+    that this channel has already, a channel a run's schedule lacks, a perturbed body outside
+    what the task's physics takes (`smol-dsl check --task`'s ranges), and scores to hold
+    for the medians that would take over MEMORY_SHARE of the machine's memory."""
     from smol_dsl.language.channels import Channel
 
     if not runs:
@@ -64,35 +154,71 @@ def check_perturbations(runs: Sequence[RunRecord], perturbations: Perturbations)
         raise RobustnessError(
             f"{unfinished[0].directory} has not finished: it has no final archive to re-score"
             + (f" (nor have {counted(len(unfinished) - 1, 'other run')})" if len(unfinished) > 1 else "")
-            + "; finish it with `--resume`, or leave it out"
+            + "; finish it with `--resume`, or measure the finished runs with --finished-only"
         )
-    if isinstance(perturbations.starts, bool) or not isinstance(perturbations.starts, int) or perturbations.starts < 0:
-        raise RobustnessError(f"starts {perturbations.starts!r}: a number of episode starts, at least 1 (0: none)")
-    if not perturbations.names:
-        raise RobustnessError("nothing to measure: give at least one body channel, some starts or the float path")
-    seen: set[Channel] = set()
+    check_families(perturbations)
+    for name, factors in perturbations.bodies:
+        channel = Channel.parse(name)
+        for run in runs:
+            _check_run_body(run, channel, factors)
+    _check_memory(estimate(runs, perturbations))
+
+
+def check_families(perturbations: Perturbations) -> None:
+    """The checks of `check_perturbations` that need no runs (a RobustnessError): the start
+    count, each body family's factors, and that there is something to measure."""
+    from smol_dsl.language.channels import Channel
+
+    _check_starts(perturbations.starts)
+    if not (perturbations.bodies or perturbations.starts or perturbations.float_path):
+        raise RobustnessError("nothing to measure: give at least one body family, some starts or the float path")
+    seen: dict[Channel, set[float]] = {}
     for name, factors in perturbations.bodies:
         try:
             channel = Channel.parse(name)
         except (ValueError, TypeError) as error:
             raise RobustnessError(f"body {name}: {error}") from None
-        if channel in seen:
-            raise RobustnessError(f"body {name} is given twice; give each channel's factors once")
-        seen.add(channel)
-        _check_factors(name, factors)
-        for run in runs:
-            _check_run_body(run, channel, factors)
+        _check_factors(channel.name, factors, seen.setdefault(channel, set()))  # no factor twice: names differ
 
 
-def _check_factors(name: str, factors: Sequence[float]) -> None:
+def _check_starts(starts: object) -> None:
+    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 0:
+        raise RobustnessError(f"starts {starts!r}: a number of episode starts, odd, from 1 to {MOST_SAMPLES} (0: none)")
+    if starts > MOST_SAMPLES:
+        raise RobustnessError(
+            f"starts {starts}: at most {MOST_SAMPLES} other starts (each scores every elite once more, and the "
+            f"median holds them all); give fewer, e.g. --starts 99"
+        )
+    if starts and starts % 2 == 0:
+        raise RobustnessError(
+            f"starts {starts}: give an odd number of starts ({starts - 1} or {starts + 1}), so that each elite's "
+            "median over them is one start's result, not the midpoint of two"
+        )
+
+
+def _check_factors(channel: str, factors: Sequence[float], seen: set[float]) -> None:
+    given = f"body {channel}={','.join(f'{f:g}' if isinstance(f, (int, float)) else repr(f) for f in factors)}"
     if not factors:
-        raise RobustnessError(f"body {name}: no factors; give some, e.g. {name}=0.9,1.1 or {name}=0.8:1.2:9")
+        raise RobustnessError(f"body {channel}: no factors; give some, e.g. {channel}=0.9,0.95,0.99")
     for factor in factors:
         if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not math.isfinite(factor) or factor <= 0:
-            raise RobustnessError(f"body {name}: factor {factor!r} is not a finite number above 0")
-    repeated = sorted({f for f in factors if list(factors).count(f) > 1})
-    if repeated:
-        raise RobustnessError(f"body {name}: factor {repeated[0]:g} is given twice; give each factor once")
+            raise RobustnessError(f"{given}: factor {factor!r} is not a finite number above 0")
+        if factor in seen:
+            raise RobustnessError(f"{given}: factor {factor:g} of {channel} is given twice; give each factor once")
+        seen.add(factor)
+    if len(factors) > MOST_SAMPLES:
+        raise RobustnessError(f"{given}: {len(factors)} factors; a family takes at most {MOST_SAMPLES}")
+    if 1 in factors and len(factors) > 1:
+        raise RobustnessError(
+            f"{given}: x1 is the final body, not a change of it, and would pull the family's median to the "
+            f"archive's own result; give it as a family of its own (--body {channel}=1, the control)"
+        )
+    if len(factors) % 2 == 0:
+        raise RobustnessError(
+            f"{given}: {counted(len(factors), 'factor')}; a family's median is taken over an odd number of "
+            "factors, so that it is one factor's result, not the midpoint of two; add or drop one, or split "
+            f"the family in two (--body {channel}=... once per family)"
+        )
 
 
 def _check_run_body(run: RunRecord, channel: Channel, factors: Sequence[float]) -> None:
@@ -113,5 +239,22 @@ def _check_run_body(run: RunRecord, channel: Channel, factors: Sequence[float]) 
             )
 
 
+def _check_memory(cost: Estimate) -> None:
+    memory = machine_memory()
+    if memory is not None and cost.held_bytes > MEMORY_SHARE * memory:
+        raise RobustnessError(
+            f"measuring {cost} would hold more than {MEMORY_SHARE:.0%} of this machine's memory "
+            f"({_size(memory)}); give fewer starts or factors, or measure fewer runs at once"
+        )
+
+
+def _size(count: int) -> str:
+    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if count >= size:
+            return f"{count / size:.1f} {unit}"
+    return f"{count} B"
+
+
 DEFAULT_PERTURBATIONS = Perturbations()
-"""`smol-dsl robustness`'s defaults: gear times `DEFAULT_FACTORS`, `DEFAULT_STARTS` other starts, the float path."""
+"""`smol-dsl robustness`'s defaults: the gear families of `DEFAULT_BODIES`, `DEFAULT_STARTS`
+other starts, the float path."""

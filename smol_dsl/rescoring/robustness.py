@@ -1,16 +1,18 @@
 """How much of a finished run's final archive survives a change: of body, of episode start,
 or of the compiled program that scores it (`smol-dsl robustness`).
 
-Each perturbation is a set of samples; each sample re-scores every elite of the final
+Each perturbation is a family of samples; each sample re-scores every elite of the final
 archive once and inserts the results into a fresh archive on the same centroids (QDax's
 `MapElitesRepertoire.add`: collisions keep the best), which says how many elites kept
 their cell, moved, collided or died (`smol_dsl.rundir.RobustnessRow`). Then, as QDax's
 `reevaluation_function` builds its corrected repertoire, each elite's median fitness and
-descriptor over the perturbation's samples go into one more fresh archive: its coverage
-and max fitness are the robust ones (the row whose sample is `median`).
+descriptor over the family's samples (`median_of_samples`: an odd number of them, NaN
+samples left out) go into one more fresh archive: its coverage and max fitness are the
+robust ones (the row whose sample is `median`).
 
-- `body CHANNEL`: the final body with that channel's factor times each of `factors`
-  (default `perturbations.DEFAULT_FACTORS`: the paper's SMOL step of 0.56% and changes up to 10%);
+- `body CHANNEL xLOW-HIGH`: a family of body factors, the final body with that channel's
+  factor times each (default `perturbations.DEFAULT_BODIES`: one family each way, the
+  paper's SMOL step of 0.56%, 5% and 10%);
 - `float path`: the same body in another layout of the program (a batch of twice the
   run's, elites in the order of the filled cells, as the runner's own re-evaluation lays
   them out), as another machine would score it;
@@ -27,6 +29,7 @@ Importing this module imports no JAX; measuring does.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -38,11 +41,11 @@ import numpy as np
 from smol_dsl.errors import counted
 from smol_dsl.rescoring.lanes import lane_chunks
 from smol_dsl.rescoring.perturbations import (
-    BODY,
     DEFAULT_PERTURBATIONS,
     FLOAT_PATH,
     STARTS,
     Perturbations,
+    body_name,
     check_perturbations,
 )
 from smol_dsl.rundir import MEDIAN, RobustnessRow, load_archive
@@ -185,16 +188,45 @@ def _measure_pass(
                 rows[position].append(
                     _row(slots, position, perturbation, label, factor, fitnesses[position], descriptors[position])
                 )
+        fitness_samples = np.stack([fitnesses for fitnesses, _ in scores])
+        descriptor_samples = np.stack([descriptors for _, descriptors in scores])
         for position in placed:  # the corrected archive: each elite's median over the samples
-            fitness = np.stack([f[position] for f, _ in scores])
-            descriptor = np.stack([d[position] for _, d in scores])
-            finite = np.isfinite(fitness).all(axis=0) & np.isfinite(descriptor).all(axis=(0, 2))
-            median_fitness = np.where(finite, np.median(fitness, axis=0), np.nan)
-            median_descriptor = np.median(descriptor, axis=0)
-            rows[position].append(
-                _row(slots, position, perturbation, MEDIAN, math.nan, median_fitness, median_descriptor)
-            )
-    return rows
+            fitness, descriptor = median_of_samples(fitness_samples[:, position], descriptor_samples[:, position])
+            rows[position].append(_row(slots, position, perturbation, MEDIAN, math.nan, fitness, descriptor))
+    return {position: _counted(run_rows) for position, run_rows in rows.items()}
+
+
+def _counted(rows: list[RobustnessRow]) -> list[RobustnessRow]:
+    """The rows with each perturbation's number of samples (its `samples` column)."""
+    count = {perturbation: 0 for perturbation in dict.fromkeys(row.perturbation for row in rows)}
+    for row in rows:
+        count[row.perturbation] += row.sample != MEDIAN
+    return [dataclasses.replace(row, samples=count[row.perturbation]) for row in rows]
+
+
+def median_of_samples(fitnesses: np.ndarray, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each elite's place in the corrected archive, from its K samples (`fitnesses` (K, N),
+    `descriptors` (K, N, D)): its median fitness and its median descriptor, coordinate by
+    coordinate, over the samples where both are finite, as QDax's `reevaluation_function`
+    takes them with its default `median` extractors. Families have an odd K
+    (`check_families`), so with every sample finite each is one sample's value (a
+    descriptor's coordinates may come from different samples, as QDax's median does). A
+    sample that is NaN or infinite is left out of the elite's median, not the elite out of
+    the archive: the elite is dead (NaN fitness) only where most of its samples are (over
+    K / 2), and where an even number of them are finite, its median is the midpoint of the
+    middle two (numpy's)."""
+    fitnesses = np.asarray(fitnesses, dtype=np.float32)
+    descriptors = np.asarray(descriptors, dtype=np.float32)
+    finite = np.isfinite(fitnesses) & np.isfinite(descriptors).all(axis=-1)
+    alive = 2 * finite.sum(axis=0) > len(fitnesses)
+    fitness = np.full(fitnesses.shape[1:], np.nan, dtype=np.float32)
+    descriptor = np.full(descriptors.shape[1:], np.nan, dtype=np.float32)
+    if alive.any():
+        kept_f = np.where(finite, fitnesses, np.nan)[:, alive]
+        kept_d = np.where(finite[..., None], descriptors, np.nan)[:, alive]
+        fitness[alive] = np.nanmedian(kept_f, axis=0)
+        descriptor[alive] = np.nanmedian(kept_d, axis=0)
+    return fitness, descriptor
 
 
 def _final_body(run: RunRecord, channels: Sequence[Channel]) -> list[float]:
@@ -220,22 +252,18 @@ def _samples(program: ScoringProgram, slots: _Slots, perturbations: Perturbation
             bodies = slots.bodies.copy()
             bodies[:, column] *= np.float32(factor)
             sampled.append(
-                (f"x{factor:g}", float(factor), _scorer(slots.engine, slots, bodies, slots.starts, in_lanes))
+                (f"x{factor:g}", float(factor), _scorer(slots.engine, slots, bodies, lambda: slots.starts, in_lanes))
             )
-        samples.append((f"{BODY} {name}", sampled))
+        samples.append((body_name(Channel.parse(name).name, factors), sampled))
     if perturbations.float_path:
         other = _float_path_engine(program)
         chunks = list(_cell_chunks(slots, other.batch_size))
-        samples.append(
-            (
-                FLOAT_PATH,
-                [(f"batch {other.batch_size}", math.nan, _scorer(other, slots, slots.bodies, slots.starts, chunks))],
-            )
-        )
+        scorer = _scorer(other, slots, slots.bodies, lambda: slots.starts, chunks)
+        samples.append((FLOAT_PATH, [(f"batch {other.batch_size}", math.nan, scorer)]))
     if perturbations.starts:
         sampled = []
-        for number in range(perturbations.starts):
-            starts = _other_starts(slots, number)
+        for number in range(perturbations.starts):  # each start drawn when it is scored: K of them are not held
+            starts = functools.partial(_other_starts, slots, number)
             sampled.append((f"start {number}", math.nan, _scorer(slots.engine, slots, slots.bodies, starts, in_lanes)))
         samples.append((STARTS, sampled))
     return samples
@@ -279,12 +307,18 @@ def _cell_chunks(slots: _Slots, batch_size: int) -> list[tuple[np.ndarray, np.nd
 
 
 def _scorer(
-    engine: Engine, slots: _Slots, bodies: np.ndarray, starts: Any, chunks: list[tuple[np.ndarray, np.ndarray]]
+    engine: Engine,
+    slots: _Slots,
+    bodies: np.ndarray,
+    starts_of: Callable[[], Any],
+    chunks: list[tuple[np.ndarray, np.ndarray]],
 ) -> Callable[[], tuple[np.ndarray, np.ndarray]]:
-    """Scores every position's elites in its body and start, batch by batch: (positions,
-    cells) fitnesses and (positions, cells, D) descriptors, NaN where a cell is empty."""
+    """Scores every position's elites in its body and start (made by `starts_of` when
+    scored), batch by batch: (positions, cells) fitnesses and (positions, cells, D)
+    descriptors, NaN where a cell is empty."""
 
     def score() -> tuple[np.ndarray, np.ndarray]:
+        starts = starts_of()
         cells, dimensions = slots.archives[0].descriptors.shape
         fitnesses = np.full((len(slots.runs), cells), np.nan, dtype=np.float32)
         descriptors = np.full((len(slots.runs), cells, dimensions), np.nan, dtype=np.float32)
@@ -334,6 +368,7 @@ def _row(
         perturbation=perturbation,
         sample=sample,
         factor=factor,
+        samples=0,  # counted once the perturbation's rows are all there (`_counted`)
         cells=len(before),
         filled=count,
         kept=kept,

@@ -11,8 +11,9 @@ and report, and every figure.
 - `report`: `write_report(paths, out_dir)` writes the table with the figures and
   `page`'s index.html (`smol-dsl report`), into a directory `output` checks and writes;
 - `robustness`: `measure_and_write(paths, out_dir)` re-scores final archives under
-  perturbations (`smol_dsl.rescoring.robustness`) and writes robustness.csv, its tables with
-  U-tests and its figure (`smol-dsl robustness`), which the report adds to its own;
+  perturbations (`smol_dsl.rescoring.robustness`) and writes robustness.csv, its tables
+  (`robustness_tables`: paired tests, Holm-adjusted) and its figure (`robustness_figure`)
+  (`smol-dsl robustness`), which the report adds to its own;
 - `figures`: what every figure shares (line styles, legends, `save_figure`);
 - `run_figures`: `save_run_figures(directory)` draws a finished run directory's metrics.png
   and archive.png from its files, and is what the CLI calls after `run` and `sweep` have

@@ -25,13 +25,8 @@ from smol_dsl.results.page import index_page
 from smol_dsl.results.paper import compare_with_paper
 from smol_dsl.results.phase_maps import PHASE_MAP_FILES, frame_name, phase_map_frames, phase_maps_html
 from smol_dsl.results.report_figures import archives_figure, reevaluation_figure, results_figure
-from smol_dsl.results.robustness import (
-    Robustness,
-    robustness_figure_and_tables,
-    robustness_for_report,
-    robustness_html,
-    robustness_markdown,
-)
+from smol_dsl.results.robustness import Robustness, robustness_figure_and_tables, robustness_for_report
+from smol_dsl.results.robustness_tables import robustness_html, robustness_markdown
 from smol_dsl.results.runs import METRICS, ReportError, environment_mixing, load_runs, median_run, runs_described
 from smol_dsl.results.statistics import SIGNIFICANCE, PValueTable, markdown_escape, pvalue_table
 from smol_dsl.rundir import CONFIG_FILE, METRICS_FILE, METRICS_SCHEMA, ROBUSTNESS_FILE, RunRecord, is_run_directory

@@ -9,7 +9,15 @@ landed in another cell, `collided` lost the cell they landed in to a better elit
 scored NaN or infinite; `filled` = kept + moved cells are filled after. The row whose
 `sample` is `median` is the perturbation's corrected archive (QDax's
 `reevaluation_function` statistics: each elite's median fitness and descriptor over the
-samples), whose `coverage` and `max_fitness` are the robust coverage and max fitness.
+perturbation's `samples`, an odd number, NaN samples left out), whose `coverage` and
+`max_fitness` are the robust coverage and max fitness, and whose `filled_share` is the
+robust share: the robust coverage relative to the cells the archive held.
+
+The file is read back whole or not at all (`read_robustness`): every run has a row for
+every sample of every perturbation of the first run's, in its order, and one `median` row
+after each perturbation's samples, or the file is refused with what is missing and where.
+A file of an older smol-dsl, without the `samples` column (its medians were taken over any
+number of samples, a NaN sample deleting the elite), is refused with a word to measure again.
 """
 
 from __future__ import annotations
@@ -21,6 +29,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
+from smol_dsl.errors import counted
 from smol_dsl.rundir.files import read_text, write_text
 from smol_dsl.rundir.layout import ROBUSTNESS_FILE, RunDirectoryError
 
@@ -35,9 +44,10 @@ class RobustnessRow:
     directory: str  # the run directory, relative to robustness.csv's where it is below it
     schedule: str  # the schedule's name, as the report groups runs
     seed: int
-    perturbation: str  # "body CHANNEL", "float path" or "starts"
+    perturbation: str  # "body CHANNEL xLOW-HIGH", "float path" or "starts"
     sample: str  # "x0.99", "batch 256", "start 3", or MEDIAN
     factor: float  # the body factor of a "body" sample; NaN otherwise
+    samples: int  # the perturbation's samples (odd): the median row's median is over them
     cells: int  # cells filled before
     filled: int
     kept: int
@@ -60,6 +70,8 @@ class RobustnessRow:
 
 COLUMNS = tuple(field.name for field in fields(RobustnessRow))
 SHARES = ("filled_share", "kept_share")  # written after COLUMNS, derived: not read back
+OLD_COLUMNS = (*(name for name in COLUMNS if name != "samples"), *SHARES)
+"""robustness.csv's columns before the `samples` column (read: refused, to measure again)."""
 _TYPES = {field.name: field.type for field in fields(RobustnessRow)}
 
 
@@ -94,14 +106,21 @@ def _relative(directory: str, base: Path) -> str:
 
 def read_robustness(path: Path) -> list[RobustnessRow]:
     """robustness.csv's rows, checked, each run's directory resolved (relative ones from the
-    file's): a RunDirectoryError names the file and line that cannot be read, and what to do."""
+    file's): a RunDirectoryError names the file (and line or run) that cannot be read, and
+    says to measure again. Refused: other columns (an older file's included), a row whose
+    counts do not add up, and a grid with a hole (`_check_grid`)."""
     path = Path(path)
     again = f"measure again with `smol-dsl robustness {path.parent} --force`"
     reader = csv.reader(io.StringIO(read_text(path), newline=""))
     header = next(reader, None)
-    if header is None or tuple(header[: len(COLUMNS)]) != COLUMNS:
-        raise RunDirectoryError(f"{path}: not robustness.csv's columns ({', '.join(COLUMNS)}); {again}")
-    rows = []
+    if header is not None and tuple(header) == OLD_COLUMNS:
+        raise RunDirectoryError(
+            f"{path}: written by an older smol-dsl (no `samples` column), whose corrected archives took the median "
+            f"over any number of samples and deleted an elite for one NaN sample; {again}"
+        )
+    if header is None or tuple(header) != (*COLUMNS, *SHARES):
+        raise RunDirectoryError(f"{path}: not robustness.csv's columns ({', '.join(COLUMNS + SHARES)}); {again}")
+    rows, lines = [], []
     for line, values in enumerate(reader, start=2):
         if len(values) != len(header):
             raise RunDirectoryError(f"{path}:{line}: {len(values)} values for {len(header)} columns; {again}")
@@ -111,15 +130,99 @@ def read_robustness(path: Path) -> list[RobustnessRow]:
             row = replace(row, directory=str((path.parent / row.directory).resolve()))
         except ValueError as error:
             raise RunDirectoryError(f"{path}:{line}: {error}; {again}") from None
-        if not 0 <= row.kept <= row.filled <= row.cells or row.filled + row.collided + row.died != row.cells:
+        if (
+            not 0 <= row.kept <= row.filled <= row.cells
+            or row.kept + row.moved != row.filled
+            or row.filled + row.collided + row.died != row.cells
+            or min(row.collided, row.died) < 0
+        ):
             raise RunDirectoryError(
-                f"{path}:{line}: counts that do not add up (kept <= filled <= cells, filled + collided + died = "
-                f"cells); {again}"
+                f"{path}:{line}: counts that do not add up (kept <= filled <= cells, kept + moved = filled, filled + "
+                f"collided + died = cells); {again}"
             )
         rows.append(row)
+        lines.append(line)
     if not rows:
         raise RunDirectoryError(f"{path}: holds no rows; {again}")
+    _check_grid(path, rows, lines, again)
     return rows
+
+
+def _check_grid(path: Path, rows: list[RobustnessRow], lines: list[int], again: str) -> None:
+    """Every run has the first run's rows (run x perturbation x sample, each once, each
+    perturbation's samples then its median, `samples` of them), under one schedule and seed;
+    a RunDirectoryError names the run and the row that is missing, extra or out of place."""
+    by_run: dict[str, list[tuple[RobustnessRow, int]]] = {}
+    for row, line in zip(rows, lines, strict=True):
+        by_run.setdefault(row.directory, []).append((row, line))
+    first, *others = by_run
+    grid = [_cell(row) for row, _ in by_run[first]]
+    _check_families(path, by_run[first], again)
+    for directory in others:
+        mine = by_run[directory]
+        cells = [_cell(row) for row, _ in mine]
+        if cells != grid:
+            raise RunDirectoryError(f"{path}: {directory} {_difference(cells, grid, first)}: {EDITED}; {again}")
+        name = (mine[0][0].schedule, mine[0][0].seed)
+        line = next((line for row, line in mine if (row.schedule, row.seed) != name), None)
+        if line is not None:
+            raise RunDirectoryError(f"{path}:{line}: {directory} is named with another schedule or seed; {again}")
+
+
+EDITED = "the file is incomplete or was edited"
+
+
+def _difference(cells: list[tuple[str, str, str, int]], grid: list[tuple[str, str, str, int]], first: str) -> str:
+    """How a run's rows differ from the first run's, in words."""
+    missing = next((cell for cell in grid if cell not in cells), None)
+    if missing is not None:
+        return f"has no row for {_described(missing)}, which {first} has"
+    extra = next((cell for cell in cells if cell not in grid), None)
+    if extra is not None:
+        return f"has a row for {_described(extra)}, which {first} lacks"
+    twice = next((cell for cell in cells if cells.count(cell) > 1), None)
+    if twice is not None:
+        return f"has two rows for {_described(twice)}"
+    return f"has its rows in another order than {first}"
+
+
+def _cell(row: RobustnessRow) -> tuple[str, str, str, int]:
+    return (row.perturbation, row.sample, repr(row.factor), row.samples)
+
+
+def _described(cell: tuple[str, str, str, int]) -> str:
+    return f"{cell[0]}, sample {cell[1]}"
+
+
+def _check_families(path: Path, rows: list[tuple[RobustnessRow, int]], again: str) -> None:
+    """The first run's rows: each perturbation's samples, an odd number of them, each once and
+    each saying how many there are, then its median row."""
+    done: set[str] = set()
+    group: list[tuple[RobustnessRow, int]] = []
+    for row, line in rows:
+        if row.perturbation in done:
+            raise RunDirectoryError(f"{path}:{line}: {row.perturbation} after its median row; {EDITED}; {again}")
+        if group and row.perturbation != group[0][0].perturbation:
+            raise RunDirectoryError(f"{path}:{line}: {group[0][0].perturbation} has no median row; {EDITED}; {again}")
+        group.append((row, line))
+        if row.sample != MEDIAN:
+            continue
+        labels = [sample.sample for sample, _ in group[:-1]]
+        if (
+            len(labels) != row.samples
+            or row.samples % 2 == 0
+            or len(set(labels)) != len(labels)
+            or any(sample.samples != row.samples for sample, _ in group)
+        ):
+            raise RunDirectoryError(
+                f"{path}:{line}: the median of {row.perturbation} over {row.samples} samples, after "
+                f"{counted(len(labels), 'row')} of them (an odd number, each once); {EDITED}; {again}"
+            )
+        done.add(row.perturbation)
+        group = []
+    if group:
+        line, name = group[-1][1], group[0][0].perturbation
+        raise RunDirectoryError(f"{path}:{line}: {name} has no median row; {EDITED}; {again}")
 
 
 def _parse(kind: object, text: str) -> object:
