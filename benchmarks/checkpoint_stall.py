@@ -17,7 +17,7 @@ slowdown), since on a small machine the writer competes for the same cores.
 
 Prints `name: value` lines; the ratios `*_stall_over_sync` are the ones to quote.
 
-Usage: python benchmarks/checkpoint_stall.py [--runs 8] [--dir DIR]
+Usage: python benchmarks/checkpoint_stall.py [--runs 8] [--cells 1024] [--dir DIR]
 """
 
 from __future__ import annotations

@@ -13,9 +13,11 @@ Prints one `name: value` line per figure:
 - vs_qdax_same_options_ratio: the same, QDax's update jitted with the compiler options the
   engine uses (`smol_dsl.qdax.compiler_options`: on CPUs, faster rollouts with the same
   results), so the two differ in nothing but their own code;
-- compiles_2_phases, compiles_20_phases: XLA compilations of a whole run of 2 and of 20
-  phases under a three-channel schedule (gear, mass, friction: examples/three-channels.sched), each in a
-  fresh process (must be equal: every channel's value is traced);
+- compiles_10_phases, compiles_20_phases: XLA programs compiled (or loaded from a persistent
+  compilation cache) for a whole run of 10 and of 20 phases under a three-channel schedule
+  (gear, mass, friction: examples/three-channels.sched), each in a fresh process (must be
+  equal: every channel's value is traced). 10 is the fewest phases the runner accepts for
+  that file: its tail starts at 90%, and a run must end with a phase wholly in it;
 - reeval_10pct_over_100pct: time to re-evaluate an archive 10% full over one 100% full
   (target <= 0.2).
 
@@ -23,12 +25,17 @@ The timed programs are interleaved (A, B, C, C, B, A, ...) and each figure is a 
 medians, so a busy spell of the machine slows every program alike instead of one; the
 order reverses every round, so that no program always follows the same one.
 
-Usage: python benchmarks/runner_throughput.py [--batch-size 128] [--episode-length 100] [--repeats 21]
+`--small` measures at the test suite's run size (batch 16, 20-step episodes, 32 cells, 3
+repeats; the compile counts' runs at tests/small_runs.py's size): every line is printed, but
+the figures say nothing about speed (tests/test_benchmarks.py runs it so).
+
+Usage: python benchmarks/runner_throughput.py [--batch-size 128] [--episode-length 100] [--repeats 21] [--small]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import statistics
 import subprocess
@@ -65,10 +72,19 @@ def interleaved(programs: dict[str, Callable[[], object]], repeats: int) -> dict
 
 
 THREE_CHANNELS = Path(__file__).resolve().parent.parent / "examples" / "three-channels.sched"
+PHASES = (10, 20)  # the compile counts' runs: 10 is the fewest THREE_CHANNELS's 90% tail allows
+
+# batch, episode steps, archive cells, timed rounds; the compile counts' run settings, with
+# their budget in batches (the initial population and the generations after it)
+FULL = dict(batch_size=128, episode_length=100, cells=1024, repeats=21)
+SMALL = dict(batch_size=16, episode_length=20, cells=32, repeats=3)
+COUNT_FULL = dict(batch_size=32, episode_length=20, num_centroids=128, num_init_cvt_samples=5000, batches=41)
+COUNT_SMALL = dict(batch_size=16, episode_length=20, num_centroids=32, batches=21)  # test_channel_runs.py's run
 
 
-def count_compiles(phases: int, batch_size: int, episode_length: int) -> int:
-    """XLA compilations of a complete run under THREE_CHANNELS, in this (fresh) process."""
+def count_compiles(phases: int, small: bool) -> int:
+    """XLA programs a complete run under THREE_CHANNELS compiles or loads from a persistent
+    cache (JAX's compile event covers both), in this (fresh) process."""
     import smol_dsl
     from smol_dsl.runner import preset_config, run_experiment
 
@@ -79,30 +95,28 @@ def count_compiles(phases: int, batch_size: int, episode_length: int) -> int:
             compiles.append(event)
 
     jax.monitoring.register_event_duration_secs_listener(on_event)
-    config = preset_config(
-        "walker2d",
-        "quick",
-        evaluations=batch_size * (2 * 20 + 1),
-        batch_size=batch_size,
-        num_phases=phases,
-        num_centroids=128,
-        episode_length=episode_length,
-        num_init_cvt_samples=5000,
-    )
+    sizes = dict(COUNT_SMALL if small else COUNT_FULL)
+    evaluations = sizes["batch_size"] * sizes.pop("batches")
+    config = preset_config("walker2d", "quick", evaluations=evaluations, num_phases=phases, **sizes)
     run_experiment("walker2d", smol_dsl.load(THREE_CHANNELS), config)
     return len(compiles)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch-size", type=int, default=128)
-    parser.add_argument("--episode-length", type=int, default=100)
-    parser.add_argument("--repeats", type=int, default=21)
+    parser.add_argument("--batch-size", type=int, help="default 128 (16 with --small)")
+    parser.add_argument("--episode-length", type=int, help="default 100 (20 with --small)")
+    parser.add_argument("--repeats", type=int, help="timed rounds, default 21 (3 with --small)")
+    parser.add_argument("--small", action="store_true", help="the tests' tiny sizes: checks the script, times nothing")
     parser.add_argument("--count-compiles", type=int, metavar="PHASES", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.count_compiles is not None:
-        print(count_compiles(args.count_compiles, 32, 20))
+        print(count_compiles(args.count_compiles, args.small))
         return
+    sizes = SMALL if args.small else FULL
+    batch = args.batch_size or sizes["batch_size"]
+    length = args.episode_length or sizes["episode_length"]
+    repeats, cells = args.repeats or sizes["repeats"], sizes["cells"]
 
     import qdax.tasks.brax.v2 as qdax_envs
     from qdax.core.emitters.mutation_operators import isoline_variation
@@ -117,7 +131,6 @@ def main() -> None:
     from smol_dsl.tasks import make_task
     from smol_dsl.tasks.base import deterministic_init_state
 
-    batch, length = args.batch_size, args.episode_length
     devices = jax.local_devices()
     print(
         f"# walker2d, batch {batch}, {length}-step episodes, {len(devices)} {devices[0].platform} device(s)", flush=True
@@ -127,7 +140,7 @@ def main() -> None:
     params = task.init_policies(jax.random.key(1), batch)
     start = deterministic_init_state(task.env, jax.random.key(0))  # QDax's start for key 0
     body = jnp.ones(1)  # plain gear at 1: the standard body
-    centroids = cvt_centroids(1024, task.descriptor_low, task.descriptor_high, 50_000, jax.random.key(2))
+    centroids = cvt_centroids(cells, task.descriptor_low, task.descriptor_high, 50_000, jax.random.key(2))
 
     def engine_generation(engine: Engine) -> tuple[Callable[[], object], dict]:
         """One run's generations on `engine`, from an archive of one generation, and the
@@ -185,7 +198,7 @@ def main() -> None:
             "qdax": qdax_loop(None),
             "qdax_same_options": qdax_loop(task.compiler_options("cpu")),
         },
-        args.repeats,
+        repeats,
     )
     print(f"raw_rollout_evals_per_s: {batch / medians['raw']:.1f}")
     print(f"run_one_device_evals_per_s: {batch / medians['one_device']:.1f}")
@@ -203,7 +216,7 @@ def main() -> None:
     trained = jax.tree.map(lambda x: x[0], one_state["archive"])
     full = trained.replace(fitnesses=jnp.zeros_like(trained.fitnesses))
     full = full.replace(genotypes=jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), trained.genotypes))
-    tenth = full.replace(fitnesses=jnp.where(jnp.arange(1024)[:, None] < 103, 0.0, -jnp.inf))
+    tenth = full.replace(fitnesses=jnp.where(jnp.arange(cells)[:, None] < math.ceil(cells / 10), 0.0, -jnp.inf))
     put = one.put
     reeval_inputs = (put(jnp.ones((1, 1), jnp.float32)), put(stack_runs([start])), put(jnp.zeros((1,), jnp.float32)))
 
@@ -214,14 +227,12 @@ def main() -> None:
     reeval = interleaved({"full": reevaluate(full), "tenth": reevaluate(tenth)}, 3)
 
     compiles = {}
-    for phases in (2, 20):
-        output = subprocess.run(
-            [sys.executable, __file__, "--count-compiles", str(phases)], capture_output=True, text=True, check=True
-        ).stdout.split()
-        compiles[phases] = int(output[-1])
+    for phases in PHASES:
+        command = [sys.executable, __file__, "--count-compiles", str(phases), *(["--small"] if args.small else [])]
+        compiles[phases] = int(subprocess.run(command, capture_output=True, text=True, check=True).stdout.split()[-1])
 
-    print(f"compiles_2_phases: {compiles[2]}")
-    print(f"compiles_20_phases: {compiles[20]}")
+    for phases, count in compiles.items():
+        print(f"compiles_{phases}_phases: {count}")
     print(f"reeval_100pct_s: {reeval['full']:.3f}")
     print(f"reeval_10pct_s: {reeval['tenth']:.3f}")
     print(f"reeval_10pct_over_100pct: {reeval['tenth'] / reeval['full']:.3f}")

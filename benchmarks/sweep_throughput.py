@@ -1,8 +1,9 @@
 """Sweep throughput, measured side by side in one process (the machines are noisy).
 
 Eight walker2d runs (4 schedules x 2 seeds, the runner's quick batch and episodes, a
-short budget) are timed three ways, after one warm-up of each so that compilation is
-left out:
+short budget of 10 phases: the fewest that SMOL's 90% tail allows, since a run must end
+with a phase wholly in it) are timed three ways, after one warm-up of each so that
+compilation is left out:
 
 - sequential: `run_experiment` eight times, one after another (as eight `smol-dsl run`s);
 - sweep: `run_sweep` of the eight, on every local device (what `smol-dsl sweep` does:
@@ -17,7 +18,12 @@ Prints `name: value` lines, among them:
 - one_run_two_devices_over_one: one run as a sweep on one device over the same run on two
   devices, which split its population.
 
-Usage: python benchmarks/sweep_throughput.py [--generations 40] [--devices 2]
+`--small` runs four runs (vanilla and SMOL x 2 seeds) at the test suite's run size
+(tests/small_runs.py: 12 generations, batch 16, 20-step episodes, 32 cells; the sweep of
+tests/test_explorer.py): every line is printed, but the figures say nothing about speed
+(tests/test_benchmarks.py runs it so).
+
+Usage: python benchmarks/sweep_throughput.py [--generations 40] [--devices 2] [--small]
 """
 
 from __future__ import annotations
@@ -31,14 +37,23 @@ import warnings
 
 warnings.filterwarnings("ignore")
 
+PHASES = 10  # the fewest that SMOL, SMOL-Reverse and SMOL-Human (tails from 90%) allow
+SCHEDULES, SMALL_SCHEDULES = ("vanilla", "smol", "smol-reverse", "human"), ("vanilla", "smol")
+FULL = dict(generations=40, batch_size=128, episode_length=100, num_centroids=256, num_init_cvt_samples=10_000)
+SMALL = dict(generations=12, batch_size=16, episode_length=20, num_centroids=32, num_init_cvt_samples=50_000)
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--generations", type=int, default=40, help="generations per run after the first")
-    parser.add_argument("--batch-size", type=int, default=128)
-    parser.add_argument("--episode-length", type=int, default=100)
+    parser.add_argument("--generations", type=int, help="generations per run after the first (default 40, at least 10)")
+    parser.add_argument("--batch-size", type=int, help="default 128")
+    parser.add_argument("--episode-length", type=int, help="default 100")
     parser.add_argument("--devices", type=int, default=2, help="CPU devices to split the host into (default 2)")
+    parser.add_argument("--small", action="store_true", help="the tests' tiny sizes: checks the script, times nothing")
     args = parser.parse_args()
+    sizes = dict(SMALL if args.small else FULL)
+    for name in ("generations", "batch_size", "episode_length"):
+        sizes[name] = getattr(args, name) or sizes[name]
     os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={args.devices}")
 
     import jax
@@ -48,17 +63,9 @@ def main() -> None:
     from smol_dsl.tasks import make_task
 
     devices = jax.local_devices()
-    config = preset_config(
-        "walker2d",
-        "quick",
-        evaluations=args.batch_size * (args.generations + 1),
-        batch_size=args.batch_size,
-        episode_length=args.episode_length,
-        num_phases=4,
-        num_centroids=256,
-        num_init_cvt_samples=10_000,
-    )
-    schedules = [smol_dsl.load(name) for name in ("vanilla", "smol", "smol-reverse", "human")]
+    evaluations = sizes["batch_size"] * (sizes.pop("generations") + 1)
+    config = preset_config("walker2d", "quick", evaluations=evaluations, num_phases=PHASES, **sizes)
+    schedules = [smol_dsl.load(name) for name in (SMALL_SCHEDULES if args.small else SCHEDULES)]
     seeds = [0, 1]
     runs = len(schedules) * len(seeds)
     print(
