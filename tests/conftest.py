@@ -99,6 +99,7 @@ LONGEST_UNITS = (
     "test_properties",
     "test_qdax_examples",
     "test_accelerator",
+    "test_benchmarks",
     "test_qdax",
     "test_task_runs",
 )
