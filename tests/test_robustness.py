@@ -8,6 +8,8 @@ import dataclasses
 import io
 import math
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -313,6 +315,18 @@ def test_the_report_refuses_an_edited_or_incomplete_robustness_csv(measured, rob
     ]
     code, err = report_with(robust_sweep, tmp_path, capsys, "\n".join(line.strip() for line in older) + "\n")
     assert code == 2 and "written by an older smol-dsl" in err and "measure again" in err, err
+
+
+def test_measuring_and_checking_are_a_module_of_their_own_without_the_tables_and_figure():
+    """results.robustness loads, checks and measures; drawing (matplotlib) and the tests
+    (scipy) are robustness_figure's and robustness_tables', loaded only to write them."""
+    code = (
+        "import sys, smol_dsl.results.robustness as r; "
+        "assert not any(m.split('.')[0] in ('matplotlib', 'scipy') for m in sys.modules), sorted(sys.modules); "
+        "assert not hasattr(r, 'robustness_figure') and not hasattr(r, 'robustness_tables')"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
 
 
 def test_the_python_api_refuses_what_the_command_refuses(robust_sweep):

@@ -29,7 +29,6 @@ DEFAULT_BODIES = (("gear", (0.9, 0.95, 0.9944)), ("gear", (1.0056, 1.05, 1.1)))
 from one phase to the next (alpha 1.5 to 1 over 90 phases: 0.56%), 5% and 10% less gear, and
 as much more. One way each, so that a family's median is not the cancelling of a change and
 its opposite; three factors each, so that it is one factor's result."""
-DEFAULT_FACTORS = tuple(factor for _, factors in DEFAULT_BODIES for factor in factors)
 DEFAULT_STARTS = 9
 MOST_SAMPLES = 999
 """The most samples one perturbation takes (body factors of a family, or starts)."""
