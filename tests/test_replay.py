@@ -5,6 +5,7 @@ built again, the replay says why."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -77,3 +78,51 @@ def test_lane_batches_put_every_cell_once_and_in_its_own_lane_where_known(cells,
     known = [int(lanes[cell]) for cell in cells if 0 <= lanes[cell] < 8]
     least = max([*(known.count(lane) for lane in set(known)), -(-len(cells) // 8)])
     assert len(batches) == least
+
+
+def test_a_replay_at_a_large_batch_holds_one_rollout_and_brings_back_its_cells_poses_only(small_run, monkeypatch):
+    """A click on a paper-sized sweep (30 runs x 8,192 lanes x 1,000 steps) must not keep or
+    fetch every lane's poses (9 GB): at a large batch and short episodes, the replay's
+    program needs about the scoring program's memory, and the host gets the batch's scores
+    and the replayed cell's poses, not the batch's. (The archive was scored at batch 16, so
+    its fitness is not expected here: the replay must reach the scoring program's.)"""
+    import jax
+
+    from smol_dsl.rescoring.replay import LANES_AT_ONCE
+    from smol_dsl.runner.engine import shared_engine, stack_runs
+
+    run = read_run(small_run)
+    batch, steps = 1024, 2
+    big = dataclasses.replace(run, config=dataclasses.replace(run.config, batch_size=batch, episode_length=steps))
+    archive = load_archive(small_run)
+    fetched = []
+    device_get = jax.device_get
+
+    def counted(tree):
+        host = device_get(tree)
+        fetched.append(sum(np.asarray(leaf).nbytes for leaf in jax.tree.leaves(host)))
+        return host
+
+    monkeypatch.setattr(jax, "device_get", counted)
+    replay = replay_elites(big, archive, [archive.best_cell], resolve_bodies(["final"], big))
+    monkeypatch.undo()
+    rollout = replay.rollouts[archive.best_cell, 0]
+    nq = rollout.poses.shape[1]
+    assert rollout.scored and rollout.poses.shape == (steps + 1, nq)  # the start, then every step
+    layout = replay_layout(big)
+    runs, descriptors = layout.runs, archive.descriptors.shape[1]
+    scores = runs * batch * (1 + descriptors) * 4  # the batch's fitnesses and descriptors, float32
+    poses = runs * LANES_AT_ONCE * (4 + steps * (nq * 4 + 1))  # the lanes' fitnesses, positions, steps counted
+    assert sum(fetched) <= scores + poses + 1024, (fetched, scores, poses)  # not batch x steps x nq floats
+
+    engine = shared_engine(big.task, big.config, layout.devices, layout.runs_per_step, layout.runs, layout.channels)
+    one = jax.tree.map(lambda x: np.asarray(x)[np.zeros(batch, dtype=int)], archive.genotypes)
+    genotypes = engine.put_for_every_run(one, runs)
+    bodies = engine.put(np.ones((runs, len(engine.channels)), np.float32))
+    starts = engine.put(stack_runs([engine.task.episode_start(big.seed)] * runs))
+    lanes = engine.put(np.zeros((runs, LANES_AT_ONCE), np.int32))
+    scoring = engine._scores.lower(genotypes, bodies, starts).compile().memory_analysis()
+    replaying = engine._replays.lower(genotypes, bodies, starts, lanes).compile().memory_analysis()
+    one_rollout = scoring.temp_size_in_bytes + scoring.output_size_in_bytes
+    assert replaying.output_size_in_bytes <= poses + 64  # and the table of its three results
+    assert replaying.temp_size_in_bytes + replaying.output_size_in_bytes <= 1.25 * one_rollout, (replaying, scoring)

@@ -35,6 +35,10 @@ if TYPE_CHECKING:
     from smol_dsl.rundir.archive import Archive
     from smol_dsl.rundir.record import RunRecord
 
+LANES_AT_ONCE = 8
+"""Lanes whose poses one replay keeps (`Engine.replay`): every replay takes this many (the
+first repeated), so one compiled program serves every click and render."""
+
 
 @dataclass(frozen=True)
 class Rollout:
@@ -126,9 +130,11 @@ def replay_elites(
     its lane (`replay_layout`, `lane_batches`): in the body the archive was scored in, the
     fitness and descriptor are the archive's, bit for bit, wherever that program can be
     built again (`Replay.inexact` says why not). The poses come from the same rollout
-    compiled to record positions, in the same lane; `steps` (default: the run's episode
-    length) rolls out a longer or shorter episode than the one scored. Rollouts are keyed
-    by (cell, the body's index in `bodies`)."""
+    compiled to record the positions of the cells' lanes only (`Engine.replay`), so a
+    replay holds about one rollout's memory whatever the batch, and brings one batch's
+    scores and the cells' poses to the host; `steps` (default: the run's episode length)
+    rolls out a longer or shorter episode than the one scored. Rollouts are keyed by
+    (cell, the body's index in `bodies`)."""
     import jax
 
     from smol_dsl.runner.engine import shared_engine, shared_task, stack_runs
@@ -146,25 +152,28 @@ def replay_elites(
     runs = scoring.padded_runs(layout.runs)
     episode_start = scoring.task.episode_start(config.seed)
     start, start_pose = stack_runs([episode_start] * runs), np.asarray(episode_start.pipeline_state.q)
-    batch = config.batch_size
+    batch, r = config.batch_size, layout.index
     rollouts = {}
-    for body_index, (_, body) in enumerate(bodies):
-        row = [body.get(channel.name, 1.0) for channel in scoring.channels]
-        factors = np.asarray([row] * runs, dtype=np.float32)
-        for chunk in lane_batches(cells, archive.lanes, batch):
-            index, _ = lane_index(chunk, batch)
-            one = jax.tree.map(lambda x, index=index: np.asarray(x)[index], archive.genotypes)
-            genotypes = jax.tree.map(lambda x: np.broadcast_to(x, (runs, *x.shape)), one)
+    for chunk in lane_batches(cells, archive.lanes, batch):
+        index, _ = lane_index(chunk, batch)
+        one = jax.tree.map(lambda x, index=index: np.asarray(x)[index], archive.genotypes)
+        genotypes = scoring.put_for_every_run(one, runs)  # the batch in every run, as the run scored it
+        placed = list(chunk.items())
+        for body_index, (_, body) in enumerate(bodies):
+            row = [body.get(channel.name, 1.0) for channel in scoring.channels]
+            factors = np.asarray([row] * runs, dtype=np.float32)
             fitnesses, descriptors = scoring.score(genotypes, factors, start)
-            replayed, _, q, valid = drawing.replay(genotypes, factors, start)
-            r = layout.index
-            for lane, cell in chunk.items():
-                rollouts[cell, body_index] = Rollout(
-                    fitness=float(fitnesses[r, lane]),
-                    descriptor=np.asarray(descriptors[r, lane]),
-                    poses=np.concatenate([start_pose[None], q[r, lane][valid[r, lane]]]),  # until the episode ends
-                    scored=drawing is not scoring or bool(replayed[r, lane] == fitnesses[r, lane]),
-                )
+            for first in range(0, len(placed), LANES_AT_ONCE):
+                some = placed[first : first + LANES_AT_ONCE]
+                lanes = [lane for lane, _ in some] + [some[0][0]] * (LANES_AT_ONCE - len(some))  # one shape
+                replayed, q, valid = drawing.replay(genotypes, factors, start, np.asarray(lanes))
+                for position, (lane, cell) in enumerate(some):
+                    rollouts[cell, body_index] = Rollout(
+                        fitness=float(fitnesses[r, lane]),
+                        descriptor=np.asarray(descriptors[r, lane]),
+                        poses=np.concatenate([start_pose[None], q[r, position][valid[r, position]]]),  # until it ends
+                        scored=drawing is not scoring or bool(replayed[r, position] == fitnesses[r, lane]),
+                    )
     return Replay(
         model=drawing.task.env.sys.mj_model,
         dt=float(drawing.task.env.dt),

@@ -46,6 +46,7 @@ if TYPE_CHECKING:
 
 RUNS = "runs"
 POPULATION = "population"
+LANES = "lanes"  # the batch's axis inside a replay's rollout, for picking a few lanes' positions
 
 
 class Engine:
@@ -114,6 +115,11 @@ class Engine:
         """Place arrays with a leading runs axis on the devices, split along that axis."""
         return jax.device_put(tree, self.sharding)
 
+    def put_for_every_run(self, tree: Any, runs: int) -> Any:
+        """The same arrays for each of `runs` runs, placed as `put` places them: repeated on
+        the devices, so the host holds one copy, not one per run."""
+        return jax.jit(partial(_repeated, runs=runs), out_shardings=self.sharding)(tree)
+
     # ------------------------------------------------------------------ per-run programs
     def _over_runs(
         self, run_fn: Any, donate: tuple[int, ...] = (), in_groups: bool = False, reads_archives: bool = True
@@ -173,6 +179,32 @@ class Engine:
         gather = partial(jax.lax.all_gather, axis_name=POPULATION, tiled=True)
         return tuple(gather(result) for result in score(mine, body, start))
 
+    def _replay_lanes(self, genotypes: Any, body: jax.Array, start: Any, lanes: jax.Array) -> tuple[jax.Array, ...]:
+        """One run's batch rolled out as `_score` rolls it out (the same vmapped rollout, each
+        device its share of the batch), keeping the positions of `lanes` (L,) only: their
+        fitnesses (L,), positions (L, T, nq) and whether each step counts (L, T). The lanes'
+        positions are picked inside the rollout's scan, so no step keeps the whole batch's."""
+        shares = self.population_devices
+        size = self.batch_size // shares
+        first = jax.lax.axis_index(POPULATION) * size if shares > 1 else 0
+        mine = genotypes
+        if shares > 1:
+            mine = jax.tree.map(lambda x: jax.lax.dynamic_slice_in_dim(x, first, size), genotypes)
+        local = jnp.clip(lanes - first, 0, size - 1)  # where each lane is in this device's share
+
+        def kept(q: jax.Array) -> jax.Array:  # under the vmap over the share's lanes: the chosen lanes' positions
+            return jax.lax.all_gather(q, LANES)[local]
+
+        rollout = jax.vmap(
+            partial(self.task.rollout, poses=kept), in_axes=(0, None, None), out_axes=(0, 0, None, 0), axis_name=LANES
+        )
+        fitnesses, _, positions, valid = rollout(mine, body, start)
+        results = (fitnesses[local], jnp.swapaxes(positions, 0, 1), valid[local])
+        if shares == 1:
+            return results
+        owner, which = lanes // size, jnp.arange(lanes.shape[0])  # the device whose share holds each lane
+        return tuple(jax.lax.all_gather(result, POPULATION)[owner, which] for result in results)
+
     # ------------------------------------------------------------------ batched API
     def empty_archives(self, centroids: jax.Array) -> MapElitesRepertoire:
         """One empty archive per run, on its centroids (R, C, D)."""
@@ -228,12 +260,17 @@ class Engine:
         the devices it trained on."""
         return jax.device_get(self._scores(self.put(genotypes), self.put(bodies), self.put(starts)))
 
-    def replay(self, genotypes: Any, bodies: jax.Array, starts: Any) -> tuple[np.ndarray, ...]:
-        """`score`, with every step's positions (R, B, T, nq) and whether it counts (R, B, T):
-        the same rollout on the same layout, for drawing the gaits."""
+    def replay(self, genotypes: Any, bodies: jax.Array, starts: Any, lanes: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The batch rolled out as `score` rolls it out (the same rollout on the same
+        layout), for drawing the gaits of `lanes` (L,): their fitnesses (R, L), every step's
+        positions (R, L, T, nq) and whether it counts (R, L, T). Only those lanes' positions
+        are kept and brought to the host; the lanes are a traced input, so one compiled
+        program serves any L lanes."""
         if self._replays is None:
-            self._replays = self._over_runs(partial(self._score, poses=True), in_groups=True, reads_archives=False)
-        return jax.device_get(self._replays(self.put(genotypes), self.put(bodies), self.put(starts)))
+            self._replays = self._over_runs(self._replay_lanes, in_groups=True, reads_archives=False)
+        runs = jax.tree.leaves(starts)[0].shape[0]
+        lanes = np.broadcast_to(np.asarray(lanes, dtype=np.int32), (runs, len(lanes)))
+        return jax.device_get(self._replays(self.put(genotypes), self.put(bodies), self.put(starts), self.put(lanes)))
 
     def metrics(self, repertoires: MapElitesRepertoire) -> dict[str, np.ndarray]:
         """QDax's coverage, max fitness and QD score of every run's archive."""
@@ -334,6 +371,10 @@ def in_run_groups(run_fn: Any, args: tuple[Any, ...], group: int, unbatched: boo
         return jax.tree.map(lambda out, new: jax.lax.dynamic_update_slice_in_dim(out, new, first, 0), results, part)
 
     return jax.lax.fori_loop(0, runs // size, step, results)
+
+
+def _repeated(tree: Any, runs: int) -> Any:
+    return jax.tree.map(lambda x: jnp.broadcast_to(x, (runs, *x.shape)), tree)
 
 
 def _zeros(shape: tuple[int, ...], dtype: Any) -> jax.Array:

@@ -155,14 +155,21 @@ class Task:
         return {}
 
     def rollout(
-        self, params: Any, body: jax.Array, start: State, *, transitions: bool = False, poses: bool = False
+        self,
+        params: Any,
+        body: jax.Array,
+        start: State,
+        *,
+        transitions: bool = False,
+        poses: bool | Callable[[jax.Array], jax.Array] = False,
     ) -> tuple[jax.Array, ...]:
         """Fitness and descriptor of one policy in `body`, a (C,) array of factors for
         `channels`; with `transitions`, also every step's QDax `QDTransition`, as QDax's
         Brax scoring records them (`dones` and `truncations` as Brax's `EpisodeWrapper` sets
         them: the last step ends the episode); with `poses`, also the generalized positions
         `q` reached by every step (T, nq) and whether the step counts (T,): what a renderer
-        draws (`smol_dsl.results.gaits`)."""
+        draws (`smol_dsl.results.gaits`); a callable `poses` keeps what it returns of each
+        step's `q` instead (under a named vmap, a few lanes' positions: the engine's replay)."""
         if jnp.shape(body) != (len(self.channels),):
             names = ", ".join(channel.name for channel in self.channels)
             raise ValueError(
@@ -185,7 +192,8 @@ class Task:
                 next_descriptor = self.state_descriptor(next_state)
                 out += (_transition(state, action, next_state, reward, descriptor, next_descriptor, index == last),)
             if poses:
-                out += (next_state.pipeline_state.q,)
+                q = next_state.pipeline_state.q
+                out += (poses(q) if callable(poses) else q,)
             return (next_state, ended | (next_state.done > 0)), out
 
         steps = jnp.arange(self.episode_length) if transitions else None
