@@ -97,6 +97,19 @@ def test_resume_without_its_schedule_file(small_run, tmp_path, capsys):
     assert code == 2 and f"{out} holds no schedule.sched" in err
 
 
+def test_resume_with_a_damaged_phases_file_is_refused_and_changes_nothing(small_run, tmp_path, capsys):
+    """The phases trained so far are only in phases.npz (a checkpoint holds the latest archive):
+    resuming would drop them unseen, so it is refused, naming the file and the way on."""
+    out = copy_of(small_run, tmp_path)
+    phases = out / "phases.npz"
+    phases.write_bytes(phases.read_bytes()[:300])  # cut short: a full disk, an unfinished copy
+    before = {path.name: path.read_bytes() for path in out.iterdir()}
+    code, err = cli([*RUN, "--out", str(out), "--resume"], capsys)
+    assert code == 2 and f"{phases}: not a readable phases file" in err, err
+    assert "remove the file to resume without them" in err and "rerun the run" in err, err
+    assert {path.name: path.read_bytes() for path in out.iterdir()} == before
+
+
 HOLD = """
 import sys
 from pathlib import Path

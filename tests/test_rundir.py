@@ -388,6 +388,48 @@ def test_unreadable_files_are_refused(runs, tmp_path, capsys):
     refused(["report", str(runs), "-o", str(tmp_path / "out")], capsys, metrics, "cannot be read")
 
 
+def phases_of(directory: Path, damage) -> Path:
+    """A run directory's phases.npz (two snapshots of its archive), damaged by `damage(bytes)`."""
+    from smol_dsl.rundir.snapshots import END, START, Snapshot, write_snapshots
+
+    archive = load_archive(directory)
+    write_snapshots(
+        directory, [Snapshot(g, 0, m, archive.fitnesses, archive.descriptors) for g, m in ((0, START), (1, END))]
+    )
+    path = directory / "phases.npz"
+    path.write_bytes(damage(path.read_bytes()))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("damage", "words"),
+    [
+        (lambda data: data[:300], "not a readable phases file (BadZipFile"),
+        (lambda data: b"", "not a readable phases file (EOFError"),
+        (lambda data: data[:-40], "not a readable phases file"),
+        (lambda data: data.replace(b"fitnesses", b"fitnesseX"), "not a readable phases file"),
+    ],
+    ids=["cut-short", "empty", "end-cut", "array-missing"],
+)
+def test_a_damaged_phases_file_is_one_message_naming_it(runs, damage, words):
+    from smol_dsl.rundir.snapshots import read_snapshots
+
+    path = phases_of(runs / "walker2d-smol-seed0", damage)
+    with pytest.raises(RunDirectoryError) as error:
+        read_snapshots(path.parent)
+    assert str(error.value).startswith(f"{path}: {words}") and "remove it" in str(error.value), error.value
+
+
+def test_a_report_with_a_damaged_phases_file_is_refused_before_anything_is_written(runs, tmp_path, capsys):
+    """Its phase maps would be left out unseen: the report refuses, saying how to go on."""
+    for seed in SEEDS:  # whichever run the phase maps would have drawn
+        phases_of(runs / f"walker2d-smol-seed{seed}", lambda data: data[:300])
+    out = tmp_path / "out"
+    err = refused(["report", str(runs), "-o", str(out)], capsys, runs / "walker2d-smol-seed1" / "phases.npz")
+    assert "cut short" in err and "remove it" in err and "move" in err, err
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------------------- a run's body
 def test_scheduled_columns_are_in_the_order_of_metrics_csv():
     mass, left_leg = Channel("mass"), Channel("gear", ("left_leg",))

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from smol_dsl.rundir.files import write_npz
-from smol_dsl.rundir.layout import SNAPSHOTS_FILE, RunDirectoryError
+from smol_dsl.rundir.layout import SNAPSHOTS_FILE, RunDirectoryError, leave_out
 
 START, END = 0, 1
 """A snapshot's `moment` in its phase: its first archive (after the initial population or
@@ -56,20 +56,41 @@ def write_snapshots(directory: Path, snapshots: Sequence[Snapshot]) -> None:
     )
 
 
+class SnapshotsError(RunDirectoryError):
+    """A phases.npz that cannot be read: its `path` and the `reason`; the message says what to
+    do for the commands that read it (report, explore); resuming says its own."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        self.path, self.reason = path, reason
+        super().__init__(
+            f"{path}: {reason}; remove it (the run's archives through its phases are then not shown), or rerun "
+            f"the run, {leave_out(path.parent)}"
+        )
+
+
 def read_snapshots(directory: Path) -> list[Snapshot]:
-    """A run directory's phases.npz, in order ([] where there is none); a damaged one is a
-    RunDirectoryError naming it."""
+    """A run directory's phases.npz, in order ([] where there is none); one that cannot be
+    read (cut short, damaged, arrays missing or of shapes that disagree) is a
+    SnapshotsError naming it and what to do."""
     path = Path(directory) / SNAPSHOTS_FILE
     if not path.is_file():
         return []
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: np.asarray(data[name]) for name in SNAPSHOT_ARRAYS}
-    except (OSError, ValueError, KeyError) as error:
-        raise RunDirectoryError(f"{path}: cannot be read ({error}); remove it, or rerun the run") from None
-    count = len(arrays["generation"])
-    if any(len(values) != count for values in arrays.values()) or arrays["descriptors"].ndim != 3:
-        raise RunDirectoryError(f"{path}: its arrays do not agree in length or shape; remove it, or rerun the run")
+    except OSError as error:
+        raise SnapshotsError(path, f"cannot be read ({error.strerror or error})") from None
+    except Exception as error:  # zipfile.BadZipFile, EOFError, zlib.error, ValueError...: cut short or damaged
+        raise SnapshotsError(
+            path,
+            f"not a readable phases file ({type(error).__name__}: {error}); it is damaged or cut short (a full disk, "
+            "or an unfinished copy)",
+        ) from None
+    count = len(arrays["generation"]) if arrays["generation"].ndim == 1 else -1
+    fitnesses, descriptors = arrays["fitnesses"], arrays["descriptors"]
+    shapes = fitnesses.ndim == 2 and descriptors.ndim == 3 and descriptors.shape[:2] == fitnesses.shape
+    if any(values.ndim < 1 or len(values) != count for values in arrays.values()) or not shapes:
+        raise SnapshotsError(path, "its arrays do not agree in length or shape")
     return [
         Snapshot(int(g), int(p), int(m), f, d)
         for g, p, m, f, d in zip(*(arrays[name] for name in SNAPSHOT_ARRAYS), strict=True)

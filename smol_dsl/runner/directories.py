@@ -34,6 +34,7 @@ from smol_dsl.rundir import (
 from smol_dsl.rundir.config import setting_differences
 from smol_dsl.rundir.files import read_json_object, remove_stale_temporaries
 from smol_dsl.rundir.layout import checkpoint_processes
+from smol_dsl.rundir.snapshots import SnapshotsError, read_snapshots
 from smol_dsl.rundir.sweep import SweepRun, read_sweep_file, sweep_description, sweep_differences, write_sweep_file
 from smol_dsl.runner.checkpoint import write_failure
 from smol_dsl.runner.config import RunError
@@ -129,6 +130,7 @@ def _resume_run_directory(
                 f"{directory} was started with a different schedule: {what} is not the text in {schedule_path}; "
                 f"resume it with the schedule it was started with (for instance {schedule_path} itself)"
             )
+        _check_snapshots(directory)
         if environment is not None:
             _check_environment(directory, environment, allow_environment_change)
         remove_stale_temporaries(directory)
@@ -136,6 +138,20 @@ def _resume_run_directory(
         lock.release()
         raise
     return lock
+
+
+def _check_snapshots(directory: Path) -> None:
+    """Refuse to resume a run whose phases.npz cannot be read: the archives of the phases
+    trained so far are only there (a checkpoint holds the current archive alone), so going
+    on would silently drop them."""
+    try:
+        read_snapshots(directory)
+    except SnapshotsError as error:
+        raise RunError(
+            f"{error.path}: {error.reason}. The run's archives through the phases trained so far are kept only "
+            "there (its checkpoint holds the latest archive alone), so it is not resumed: remove the file to resume "
+            "without them (phases.npz then holds the phases from the checkpoint's on), or rerun the run"
+        ) from None
 
 
 def _check_environment(directory: Path, environment: dict[str, Any], allow_change: bool) -> None:
