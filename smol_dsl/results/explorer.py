@@ -1,24 +1,28 @@
 """`smol-dsl explore`: finished runs' archives through their phases, served to a browser.
 
 `Explorer(paths, replay=..., cache=...)` reads every run below `paths` (its record, its
-phases.npz and its final archive) and answers the page's questions as JSON; `create_app`
-wraps it in a Flask app that serves the page (`explorer_page`: one file, its script inline)
-and nothing else. A request names a run by its number in the list and a cell by its index,
-never a path, so nothing outside the run directories and the gait cache can be reached.
-In the list, each schedule's run that the report shows (its median, `median_run`) is marked.
+phases.npz and its final archive; a run that cannot be read is left out with a note) and
+answers the page's questions as JSON; `smol_dsl.results.explorer_app.create_app` serves
+them. A request names a run by its number in the list and a cell by its index (ASCII digits
+only), never a path, so nothing outside the run directories and the gait cache is read. In
+the list, each schedule's run that the report shows (its median, `median_run`) is marked.
 
 A click on a cell renders the final archive's elite in that cell (the snapshots hold no
-policies) in the bodies asked for, through the same rollout as `render`
-(`smol_dsl.rescoring.replay.replay_elites`, handed down by the command line), into a GIF cached
-on disk by run, cell and bodies: a second click on it is served from the cache. Renders run
-one at a time in a worker thread; up to `MOST_QUEUED` wait, and more are refused with a
-message (HTTP 503), so a burst of clicks keeps the server answering with bounded memory.
+policies) in the bodies asked for (`final`, `phase:K`: the bodies the run trained in, each
+once), through the same rollout as `render` (`smol_dsl.rescoring.replay.replay_elites`,
+handed down by the command line), into a GIF kept in the gait cache
+(`smol_dsl.results.gait_cache`: keyed by what the gait depends on, bounded in size); a
+second click on it is served from there, with the archive's fitness and descriptor read from
+the archive. A run whose files changed since the explorer read them is not rendered (restart
+it to see the new run). Renders run one at a time in a worker thread; up to `MOST_QUEUED`
+wait, and more are refused with a message (HTTP 503), so a burst of clicks keeps the server
+answering with bounded memory.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
+import re
 import threading
 import time
 from collections.abc import Sequence
@@ -29,21 +33,23 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from smol_dsl.results.gait_cache import DEFAULT_CACHE_MB, GaitCache, RunFiles, gait_key
 from smol_dsl.results.gaits import RenderError, resolve_bodies
 from smol_dsl.results.runs import ReportError, find_run_directories, median_run
 from smol_dsl.rundir import RunDirectoryError, RunRecord, load_archive, read_run
-from smol_dsl.rundir.snapshots import read_snapshots
+from smol_dsl.rundir.layout import SNAPSHOTS_FILE
+from smol_dsl.rundir.snapshots import SnapshotsError, read_snapshots
 from smol_dsl.tasks import descriptor_bounds, task_spec
 
 if TYPE_CHECKING:
-    from flask import Flask
-
     from smol_dsl.results.gaits import ReplayElites
 
 MOST_QUEUED = 8
 """Renders waiting at most; a click beyond them is answered 503 with a message."""
 MOST_BODIES = 4
 GAIT_SIZE = (240, 180)
+BODY = re.compile(r"final|phase:([0-9]{1,9})")
+"""The bodies a click may ask for: the final one, or a phase's (ASCII digits)."""
 
 
 class RequestError(ValueError):
@@ -60,6 +66,7 @@ class ExploredRun:
 
     record: RunRecord
     snapshots: list[Any]
+    files: RunFiles  # the files its gaits depend on, as read
     median_of: str = ""  # "SMOL's 10 runs by max_fitness" where it is the run the report shows for its schedule
 
     @property
@@ -71,17 +78,24 @@ class ExploredRun:
 class Explorer:
     """The runs below `paths` and the renders of their elites (see the module's docstring)."""
 
-    def __init__(self, paths: Sequence[str | Path], *, replay: ReplayElites | None, cache: Path) -> None:
+    def __init__(
+        self,
+        paths: Sequence[str | Path],
+        *,
+        replay: ReplayElites | None,
+        cache: Path,
+        cache_bytes: int = DEFAULT_CACHE_MB * 10**6,
+    ) -> None:
         directories = find_run_directories(paths)
         runs, problems = [], []
         for directory in directories:
             try:
+                files = RunFiles.of(directory)
                 record = read_run(directory)
+                if record.finished:
+                    runs.append(ExploredRun(record, _snapshots_of(record), files))
             except RunDirectoryError as error:
                 problems.append(str(error))
-                continue
-            if record.finished:
-                runs.append(ExploredRun(record, read_snapshots(directory)))
         if not runs:
             found = f" ({len(problems)} could not be read: {problems[0]})" if problems else ""
             raise ReportError(
@@ -93,9 +107,10 @@ class Explorer:
         )
         self.problems = problems
         self.replay = replay
-        self.cache = Path(cache)
+        self.cache = GaitCache(Path(cache), cache_bytes)  # a private directory: see gait_cache.private_directory
         self._renders = ThreadPoolExecutor(max_workers=1, thread_name_prefix="smol-dsl-render")
         self._pending: dict[str, Future[dict[str, Any]]] = {}
+        self._programs: dict[Path, str | None] = {}  # each run's replay note (`replay_layout`), found once
         self._lock = threading.Lock()
 
     def close(self) -> None:
@@ -105,16 +120,13 @@ class Explorer:
     def run_list(self) -> list[dict[str, Any]]:
         return [
             {"id": number, "label": run.label, "task": run.record.task, "schedule": run.record.schedule,
-             "seed": run.record.seed, "phases": run.record.config.num_phases, "snapshots": len(run.snapshots),
-             "median": bool(run.median_of)}
+             "seed": run.record.seed, "directory": run.record.directory.name, "phases": run.record.config.num_phases,
+             "snapshots": len(run.snapshots), "median": bool(run.median_of)}
             for number, run in enumerate(self.runs)
         ]  # fmt: skip
 
     def run(self, number: str | int) -> ExploredRun:
-        try:
-            index = int(number)
-        except (TypeError, ValueError):
-            raise RequestError(f"run {number!r}: a run's number from the run list", 404) from None
+        index = whole_number(number, f"run {number!r}: a run's number from the run list", 404)
         if not 0 <= index < len(self.runs):
             raise RequestError(f"run {index}: there are runs 0 to {len(self.runs) - 1}", 404)
         return self.runs[index]
@@ -145,31 +157,30 @@ class Explorer:
 
     def gait(self, number: str | int, cell: str | int, bodies: Sequence[str]) -> dict[str, Any]:
         """The final archive's elite in `cell` rendered in `bodies` (`final`, `phase:K`): its
-        fitness and descriptor per body and the cached GIF's name; rendered now (waiting in
-        the queue) unless cached."""
+        fitness and descriptor per body, the archive's, and the cached GIF's name; rendered
+        now (waiting in the queue) unless cached."""
         run = self.run(number)
-        try:
-            index = int(cell)
-        except (TypeError, ValueError):
-            raise RequestError(f"cell {cell!r}: a cell's index, a whole number") from None
+        index = whole_number(cell, f"cell {cell!r}: a cell's index, a whole number")
         final = run.record.final_archive()
         if not 0 <= index < len(final.fitnesses):
             raise RequestError(f"cell {index}: the archive has cells 0 to {len(final.fitnesses) - 1}")
         if not final.filled[index]:
             raise RequestError(f"cell {index} is empty in the final archive: click a filled cell")
-        bodies = list(bodies) or ["final"]
-        if len(bodies) > MOST_BODIES:
-            raise RequestError(f"at most {MOST_BODIES} bodies at once")
-        try:
-            resolved = resolve_bodies(bodies, run.record)
-        except RenderError as error:
-            raise RequestError(str(error)) from None
-        key = hashlib.sha256(repr((str(run.record.directory.resolve()), index, resolved)).encode()).hexdigest()[:24]
-        answer = self.cache / f"{key}.json"
-        if answer.is_file() and (self.cache / f"{key}.gif").is_file():
-            import json
-
-            return {**json.loads(answer.read_text()), "cached": True}
+        resolved = self._bodies(run, list(bodies) or ["final"])
+        changed = run.files.changed()
+        if changed:
+            raise RequestError(
+                f"{run.record.directory.name} changed since the explorer read it ({', '.join(changed)}); restart "
+                "`smol-dsl explore` to see the run as it is now",
+                409,
+            )
+        if self.replay is None:
+            raise RequestError("this explorer renders no gaits (no replay given)", 503)
+        key = gait_key(run.files, index, resolved, GAIT_SIZE, self._program(run))
+        labels = [label for label, _ in resolved]
+        cached = self.cache.get(key, index, labels, final.descriptors.shape[1])
+        if cached is not None:
+            return self._answer(run, index, key, cached, cached=True)
         with self._lock:
             future = self._pending.get(key)
             if future is None:
@@ -178,56 +189,108 @@ class Explorer:
                 future = self._renders.submit(self._render, run, index, resolved, key)
                 self._pending[key] = future
         try:
-            return future.result()
+            return self._answer(run, index, key, future.result(), cached=False)
         finally:
             with self._lock:
                 self._pending.pop(key, None)
 
+    def _bodies(self, run: ExploredRun, specs: list[str]) -> list[tuple[str, dict[str, float]]]:
+        """`final` and `phase:K` (K a phase of the run, in ASCII digits), each once, at most
+        MOST_BODIES: the bodies the run trained in, so the renders a run can be asked for are
+        bounded."""
+        if len(specs) > MOST_BODIES:
+            raise RequestError(f"at most {MOST_BODIES} bodies at once")
+        phases = run.record.config.num_phases
+        seen = set()
+        for spec in specs:
+            match = BODY.fullmatch(spec)
+            if match is None:
+                raise RequestError(f"body {spec!r}: give `final` or `phase:K`, K a phase from 0 to {phases - 1}")
+            body = spec if match.group(1) is None else int(match.group(1))
+            if body in seen:
+                raise RequestError(f"body {spec!r} is asked for twice; ask for each body once")
+            seen.add(body)
+        try:
+            return resolve_bodies(specs, run.record)
+        except RenderError as error:
+            raise RequestError(str(error)) from None
+
+    def _program(self, run: ExploredRun) -> str | None:
+        """The replay's note on the program it can build here (`replay_layout`: None where it
+        is the one that scored the archive), part of the gait's key."""
+        directory = run.record.directory
+        if directory not in self._programs:
+            from smol_dsl.rescoring.replay import replay_layout
+
+            self._programs[directory] = replay_layout(run.record).inexact
+        return self._programs[directory]
+
+    def _answer(self, run: ExploredRun, cell: int, key: str, rendered: dict[str, Any], cached: bool) -> dict[str, Any]:
+        """A gait's answer: the rendered rollouts with the archive's own fitness and
+        descriptor (from the archive, never from the cache)."""
+        final = run.record.final_archive()
+        return {
+            "cell": cell,
+            "archive_fitness": float(final.fitnesses[cell]),
+            "archive_descriptor": [float(x) for x in final.descriptors[cell]],
+            "gaits": rendered["gaits"],
+            "image": f"gaits/{key}.gif",
+            "seconds": rendered["seconds"],
+            "cached": cached,
+        }
+
     def _render(
         self, run: ExploredRun, cell: int, bodies: list[tuple[str, dict[str, float]]], key: str
     ) -> dict[str, Any]:
-        import json
-
         from smol_dsl.results.gait_video import gif_bytes
         from smol_dsl.results.gaits import render_gaits
-        from smol_dsl.rundir.files import atomic_write
 
-        if self.replay is None:
-            raise RequestError("this explorer renders no gaits (no replay given)", 503)
+        assert self.replay is not None
         started = time.perf_counter()
         archive = load_archive(run.record.directory)
         gaits = render_gaits(run.record, archive, [cell], bodies, replay=self.replay, size=GAIT_SIZE)
-        self.cache.mkdir(parents=True, exist_ok=True)
-        image = gif_bytes(gaits)
-        atomic_write(self.cache / f"{key}.gif", lambda file: file.write(image))
-        result = {
+        rendered = {
             "cell": cell,
-            "archive_fitness": float(archive.fitnesses[cell]),
-            "archive_descriptor": [float(x) for x in archive.descriptors[cell]],
             "gaits": [
-                {"body": g.body_label, "factors": g.body, "fitness": float(g.fitness),
-                 "descriptor": [float(x) for x in g.descriptor], "inexact": g.inexact}
+                {"body": g.body_label, "factors": g.body, "fitness": _finite(g.fitness),
+                 "descriptor": [_finite(x) for x in g.descriptor], "inexact": g.inexact}
                 for g in gaits
             ],
-            "image": f"gaits/{key}.gif",
             "seconds": round(time.perf_counter() - started, 2),
         }  # fmt: skip
-        text = json.dumps(result)
-        atomic_write(self.cache / f"{key}.json", lambda file: file.write(text.encode()))
-        return {**result, "cached": False}
+        if not run.files.changed():  # the archive rendered is the one the key names
+            self.cache.put(key, rendered, gif_bytes(gaits))
+        return rendered
 
-    def gait_file(self, name: str) -> Path:
-        """A cached GIF by its name (24 hex digits and .gif), a file of the cache itself (a
-        symlink, which could lead out of it, is not served); anything else is a 404."""
+    def gait_image(self, name: str) -> bytes:
+        """A cached GIF by its name (a key and .gif), read from the cache itself without
+        following a link; anything else is a 404."""
         stem = name.removesuffix(".gif")
-        if not name.endswith(".gif") or len(stem) != 24 or any(c not in "0123456789abcdef" for c in stem):
+        if not name.endswith(".gif") or re.fullmatch(r"[0-9a-f]{32}", stem) is None:
             raise RequestError(f"no gait {name!r}", 404)
-        path = self.cache / name
-        if path.is_symlink():
-            raise RequestError(f"no gait {name!r}: the cache's file is a link, not served", 404)
-        if not path.is_file():
-            raise RequestError(f"no gait {name!r}: click its cell to render it", 404)
-        return path
+        try:
+            return self.cache.image(stem)
+        except OSError:
+            raise RequestError(f"no gait {name!r}: click its cell to render it", 404) from None
+
+
+def whole_number(text: str | int, message: str, status: int = 400) -> int:
+    """A number of the page's (a run, a cell): ASCII digits only (no sign, space, `_` or
+    other digits, which `int` takes), at most 9 of them; a RequestError with `message`."""
+    if isinstance(text, int) and not isinstance(text, bool) and text >= 0:
+        return text
+    if not isinstance(text, str) or re.fullmatch(r"[0-9]{1,9}", text) is None:
+        raise RequestError(message, status)
+    return int(text)
+
+
+def _snapshots_of(record: RunRecord) -> list[Any]:
+    """A run's phases.npz, checked against its archive's cells (a RunDirectoryError if not)."""
+    snapshots = read_snapshots(record.directory)
+    cells = record.config.num_centroids
+    if any(len(s.fitnesses) != cells for s in snapshots):
+        raise SnapshotsError(record.directory / SNAPSHOTS_FILE, f"its archives are not of the run's {cells} cells")
+    return snapshots
 
 
 def _mark_medians(runs: list[ExploredRun]) -> list[ExploredRun]:
@@ -245,59 +308,9 @@ def _mark_medians(runs: list[ExploredRun]) -> list[ExploredRun]:
     return [replace(run, median_of=medians.get(run.record.directory, "")) for run in runs]
 
 
-def _finite(value: float) -> float | None:
+def _finite(value: Any) -> float | None:
     return float(value) if math.isfinite(float(value)) else None
 
 
 def _finite_or_none(values: np.ndarray) -> list[float | None]:
     return [round(float(v), 4) if math.isfinite(float(v)) else None for v in np.asarray(values).reshape(-1)]
-
-
-def create_app(explorer: Explorer) -> Flask:
-    """The Flask app that serves the page, the runs' data and the cached gaits, and nothing
-    else: every other path is a 404, a malformed request a 400 with its reason as JSON."""
-    from flask import Flask, jsonify, request, send_file
-    from werkzeug.exceptions import HTTPException
-
-    from smol_dsl.results.explorer_page import explorer_page
-
-    app = Flask("smol-dsl-explore")
-    app.json.sort_keys = False  # type: ignore[attr-defined]
-
-    @app.get("/")
-    def page() -> Any:
-        return explorer_page(), 200, {"Content-Type": "text/html; charset=utf-8", "Cache-Control": "no-store"}
-
-    @app.get("/api/runs")
-    def runs() -> Any:
-        return jsonify(explorer.run_list())
-
-    @app.get("/api/runs/<number>")
-    def run(number: str) -> Any:
-        return jsonify(explorer.run_data(number))
-
-    @app.get("/api/runs/<number>/gait")
-    def gait(number: str) -> Any:
-        return jsonify(explorer.gait(number, request.args.get("cell", ""), request.args.getlist("body")))
-
-    @app.get("/gaits/<name>")
-    def gait_image(name: str) -> Any:
-        return send_file(explorer.gait_file(name), mimetype="image/gif", max_age=3600)
-
-    @app.errorhandler(RequestError)
-    def refused(error: RequestError) -> Any:
-        return jsonify({"error": str(error)}), error.status
-
-    @app.errorhandler(HTTPException)
-    def http_error(error: HTTPException) -> Any:
-        return jsonify({"error": error.description}), error.code
-
-    @app.errorhandler(RenderError)
-    def render_error(error: RenderError) -> Any:
-        return jsonify({"error": str(error)}), 503
-
-    @app.errorhandler(Exception)
-    def internal(error: Exception) -> Any:  # never a traceback to the browser, never a stopped server
-        return jsonify({"error": f"internal error: {type(error).__name__}: {error}"}), 500
-
-    return app

@@ -4,9 +4,14 @@ coverage and max-fitness curves with the moment marked, another run's archive be
 same moment on one colour scale (schedules side by side), and, for a clicked cell, the final
 archive's elite rendered in the bodies chosen. The view (run, moment, cell, the run beside) is
 kept in the URL's fragment, so a view can be shared; arrow keys step through the moments,
-space plays them."""
+space plays them. The script reads the server's token from the page's URL (`?token=`) and
+sends it with every request (`explorer_app`); its hash (`SCRIPT_HASH`) is what the page's
+Content-Security-Policy lets run."""
 
 from __future__ import annotations
+
+import base64
+import hashlib
 
 PAGE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>smol-dsl explore</title><link rel="icon" href="data:,">
@@ -24,6 +29,7 @@ canvas { border: 1px solid #ccc; cursor: crosshair }
 <p>A run's archive at the start and end of each phase; click a cell for the final archive's elite in it, rolled out in
 the bodies ticked (the same rollout as <code>smol-dsl render</code>); pick another run to see beside it at the same moment,
 on one colour scale. Keys: left and right step, space plays.</p>
+<p id="problem" class="error" hidden></p>
 <label>run <select id="run"></select></label>
 <label>beside it <select id="beside"><option value="">no other run</option></select></label>
 <div id="main">
@@ -49,6 +55,13 @@ on one colour scale. Keys: left and right step, space plays.</p>
 <script>
 (() => {
 const $ = (id) => document.getElementById(id);
+const token = new URLSearchParams(location.search).get("token") || "";
+async function ask(path) {  // the server's JSON answer, or an Error with its message
+  const reply = await fetch(path, {headers: {"X-Smol-Dsl-Token": token}}), answer = await reply.json();
+  if (!reply.ok) throw new Error(answer.error || `${reply.status}`);
+  return answer;
+}
+const problem = (error) => { $("problem").hidden = false; $("problem").textContent = String(error.message || error); };
 const state = {runs: [], run: null, data: null, snap: 0, cell: null, timer: null, beside: null, other: null};
 const stops = [[68,1,84],[59,82,139],[33,145,140],[94,201,98],[253,231,37]];
 const color = (t) => { t = Math.max(0, Math.min(1, t)) * (stops.length - 1); const i = Math.min(stops.length - 2, Math.floor(t));
@@ -128,10 +141,10 @@ async function showCell(c) {
   $("status").className = ""; $("status").textContent = `rendering cell ${c}...`;
   try {
     const query = new URLSearchParams([["cell", c], ...bodies.map((b) => ["body", b])]);
-    const reply = await fetch(`api/runs/${state.run}/gait?${query}`), answer = await reply.json();
-    if (!reply.ok) throw new Error(answer.error);
+    const answer = await ask(`api/runs/${state.run}/gait?${query}`);
     if (state.cell !== c) return;
-    $("gait").src = answer.image; $("gait").alt = `the elite of cell ${c}`; $("gait").hidden = false;
+    $("gait").src = `${answer.image}?token=${encodeURIComponent(token)}`;
+    $("gait").alt = `the elite of cell ${c}`; $("gait").hidden = false;
     $("fitness").textContent = `cell ${c}: archive fitness ${answer.archive_fitness.toFixed(4)}, descriptor ` +
       `(${answer.archive_descriptor.map((v) => v.toFixed(3)).join(", ")}); ` +
       answer.gaits.map((g) => `${g.body} body: fitness ${g.fitness.toFixed(4)}`).join("; ") +
@@ -143,20 +156,21 @@ async function showCell(c) {
 }
 async function loadBeside(number) {
   state.beside = Number.isInteger(number) && state.runs[number] ? number : null;
-  state.other = state.beside === null ? null : await (await fetch(`api/runs/${state.beside}`)).json();
+  state.other = state.beside === null ? null : await ask(`api/runs/${state.beside}`);
   $("beside").value = state.beside === null ? "" : state.beside;
   if (state.data) { draw(); save(); }
 }
 async function loadRun(number, moment, cell) {
-  state.run = number; state.data = await (await fetch(`api/runs/${number}`)).json();
+  state.run = number; state.data = await ask(`api/runs/${number}`);
   $("slider").max = Math.max(0, state.data.snapshots.length - 1); $("child-phase").max = state.data.phases - 1;
   state.cell = null; $("gait").hidden = true; $("fitness").textContent = "";
   setMoment(moment === undefined ? state.data.snapshots.length - 1 : moment);
   if (cell !== undefined) await showCell(cell);
 }
 $("slider").addEventListener("input", () => setMoment(Number($("slider").value)));
-$("run").addEventListener("change", () => loadRun(Number($("run").value)));
-$("beside").addEventListener("change", () => loadBeside($("beside").value === "" ? null : Number($("beside").value)));
+$("run").addEventListener("change", () => loadRun(Number($("run").value)).catch(problem));
+$("beside").addEventListener("change", () =>
+  loadBeside($("beside").value === "" ? null : Number($("beside").value)).catch(problem));
 $("map").addEventListener("click", (event) => { const box = $("map").getBoundingClientRect();
   showCell(cellAt((event.clientX - box.left) * $("map").width / box.width, (event.clientY - box.top) * $("map").height / box.height)); });
 function play() {
@@ -171,7 +185,7 @@ document.addEventListener("keydown", (event) => { if (event.target.tagName === "
   else if (event.key === " ") { event.preventDefault(); play(); } });
 window.explorer = {state, position, showCell, setMoment, loadBeside};
 (async () => {
-  state.runs = await (await fetch("api/runs")).json();
+  state.runs = await ask("api/runs");
   state.runs.forEach((r) => { for (const id of ["run", "beside"]) {
     const o = document.createElement("option"); o.value = r.id; o.textContent = r.label; $(id).append(o); } });
   const h = hash(), run = h.run !== undefined ? Number(h.run) : 0;
@@ -179,11 +193,16 @@ window.explorer = {state, position, showCell, setMoment, loadBeside};
   if (h.beside !== undefined) await loadBeside(Number(h.beside));
   await loadRun(run, h.moment !== undefined ? Number(h.moment) : undefined, h.cell !== undefined ? Number(h.cell) : undefined);
   window.explorer.ready = true;
-})();
+})().catch(problem);
 })();
 </script>
 </body></html>
 """
+
+
+SCRIPT = PAGE.split("<script>", 1)[1].split("</script>", 1)[0]
+SCRIPT_HASH = "sha256-" + base64.b64encode(hashlib.sha256(SCRIPT.encode()).digest()).decode()
+"""The inline script's hash, as a Content-Security-Policy's script-src names it."""
 
 
 def explorer_page() -> str:
