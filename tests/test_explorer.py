@@ -245,7 +245,7 @@ def test_this_machine_s_names_with_the_token_are_answered_and_others_not(server)
         )
 
 
-def test_a_forged_or_damaged_cache_entry_is_not_believed(server, explored_sweep):
+def test_a_forged_or_damaged_cache_entry_is_not_believed(server, explored_sweep, tmp_path):
     """The archive's fitness comes from the archive, never the cache; an entry that is not a
     gait's is rendered again."""
     cell = filled_cells(server, 2)[-1]
@@ -263,6 +263,32 @@ def test_a_forged_or_damaged_cache_entry_is_not_believed(server, explored_sweep)
         entry.write_text(damaged)
         status, again, _ = server.get(ask)
         assert status == 200 and not again["cached"] and again["gaits"] == answer["gaits"], damaged
+    planted = tmp_path / "planted.json"  # a link in the cache is not followed, even to a well-formed entry
+    planted.write_text(entry.read_text())
+    entry.unlink()
+    entry.symlink_to(planted)
+    status, again, _ = server.get(ask)
+    assert status == 200 and not again["cached"] and not entry.is_symlink()
+
+
+def test_links_leading_out_are_not_followed(server, explored_sweep, tmp_path):
+    """A link planted in the gait cache is not served; a run reached only through a link
+    inside the given directory is not listed (nothing outside the paths given is read)."""
+    secret = tmp_path / "secret.gif"
+    secret.write_bytes(b"GIF89a secret")
+    name = "abcdef" * 5 + "ab"
+    (server.cache / f"{name}.gif").symlink_to(secret)
+    status, body, _ = server.get(f"gaits/{name}.gif")
+    assert status == 404 and "click its cell" in body["error"], body
+
+    from smol_dsl.results.explorer import Explorer
+
+    given = tmp_path / "given"
+    shutil.copytree(next(explored_sweep.glob("*-seed0")), given / "own-run")
+    (given / "linked-run").symlink_to(next(explored_sweep.glob("*-seed1")), target_is_directory=True)
+    listed = Explorer([given], replay=None, cache=tmp_path / "cache")
+    assert [run.record.directory for run in listed.runs] == [(given / "own-run").resolve()]
+    listed.close()
 
 
 def test_the_cache_is_keyed_by_the_run_s_content_and_bounded(explored_sweep, tmp_path):
