@@ -291,47 +291,62 @@ def test_links_leading_out_are_not_followed(server, explored_sweep, tmp_path):
     listed.close()
 
 
-def test_the_cache_is_keyed_by_the_run_s_content_and_bounded(explored_sweep, tmp_path):
-    """Trained again into the same directory (another seed's run in its place), a run's cell
-    is not the cached one: refused while the explorer runs (it read the old run), rendered
-    anew once it is restarted. A cache over --cache-size is cut down, least recently used
-    first."""
-    directories = sorted(path.parent for path in explored_sweep.glob("*/archive.npz"))
-    cell, before, after = next(  # two runs with an elite in one cell: the run, then the run trained again
-        (int(np.flatnonzero(load_archive(a).filled & load_archive(b).filled)[0]), a, b)
-        for a, b in itertools.permutations(directories, 2)
-        if (load_archive(a).filled & load_archive(b).filled).any()
+def test_the_cache_is_keyed_by_the_run_s_content(server, explored_sweep, tmp_path):
+    """Trained again into the same directory (another run in its place), a run's cell is not
+    the cached one: refused by the explorer that read the old run, rendered anew by one
+    started since, with the same cache. (The module's run is moved aside and back, so its
+    files are the ones the module's server read.)"""
+    runs = directories(server)
+    cell, run, other = next(  # two runs with an elite in one cell: the run, then the run trained again
+        (
+            int(np.flatnonzero(load_archive(explored_sweep / a).filled & load_archive(explored_sweep / b).filled)[0]),
+            a,
+            b,
+        )
+        for a, b in itertools.permutations(runs, 2)
+        if (load_archive(explored_sweep / a).filled & load_archive(explored_sweep / b).filled).any()
     )
-    copy = tmp_path / "sweep"
-    shutil.copytree(before, copy / "run")
-    old, new = load_archive(before), load_archive(after)
+    old, new = load_archive(explored_sweep / run), load_archive(explored_sweep / other)
+    ask = f"api/runs/{runs.index(run)}/gait?cell={cell}"
+    status, first, _ = server.get(ask)
+    assert status == 200 and first["archive_fitness"] == float(old.fitnesses[cell]), first
+    (explored_sweep / run).rename(tmp_path / "trained-before")
+    try:
+        shutil.copytree(explored_sweep / other, explored_sweep / run)
+        status, answer, _ = server.get(ask)
+        assert status == 409 and "changed since the explorer read it" in answer["error"], answer
+        again = Explore(explored_sweep, "--cache", server.cache)
+        try:
+            status, answer, _ = again.get(f"api/runs/{directories(again).index(run)}/gait?cell={cell}")
+        finally:
+            again.stop()
+        assert status == 200 and not answer["cached"] and answer["image"] != first["image"], answer
+        assert answer["archive_fitness"] == answer["gaits"][0]["fitness"] == float(new.fitnesses[cell])
+    finally:
+        shutil.rmtree(explored_sweep / run, ignore_errors=True)
+        (tmp_path / "trained-before").rename(explored_sweep / run)
+    status, answer, _ = server.get(ask)
+    assert status == 200 and answer["cached"] and answer["image"] == first["image"]
+
+
+def test_a_cache_over_its_bound_is_cut_down_least_recently_used_first(explored_sweep, tmp_path):
+    """At the start (a bound lowered since), and after each render (`GaitCache.put`); only
+    the files named as gaits are counted or removed."""
+    from smol_dsl.results.gait_cache import GaitCache
+
     cache = tmp_path / "cache"
     cache.mkdir(mode=0o700)
     for number in range(3):  # 1.5 MB of gaits from an earlier session, the oldest first
-        (cache / f"{number:032x}.gif").write_bytes(b"GIF89a" + bytes(500_000))
-        (cache / f"{number:032x}.json").write_text("{}")
-        os.utime(cache / f"{number:032x}.json", (1e9 + number, 1e9 + number))
-        os.utime(cache / f"{number:032x}.gif", (1e9 + number, 1e9 + number))
-    (cache / "notes.txt").write_bytes(bytes(100_000))  # not a gait's: left alone
-    served = Explore(copy, "--cache", cache, "--cache-size", "1")
-    try:
-        assert sorted(p.name for p in cache.iterdir()) == [f"{2:032x}.gif", f"{2:032x}.json", "notes.txt"]
-        status, first, _ = served.get(f"api/runs/0/gait?cell={cell}")
-        assert status == 200 and first["archive_fitness"] == float(old.fitnesses[cell]), first
-        shutil.rmtree(copy / "run")
-        shutil.copytree(after, copy / "run")
-        status, answer, _ = served.get(f"api/runs/0/gait?cell={cell}")
-        assert status == 409 and "changed since the explorer read it" in answer["error"], answer
-    finally:
-        served.stop()
-    assert sum(p.stat().st_size for p in cache.iterdir() if p.name != "notes.txt") <= 10**6
-    served = Explore(copy, "--cache", cache, "--cache-size", "1")
-    try:
-        status, answer, _ = served.get(f"api/runs/0/gait?cell={cell}")
-    finally:
-        served.stop()
-    assert status == 200 and not answer["cached"] and answer["image"] != first["image"], answer
-    assert answer["archive_fitness"] == answer["gaits"][0]["fitness"] == float(new.fitnesses[cell])
+        for suffix in ("gif", "json"):
+            (cache / f"{number:032x}.{suffix}").write_bytes(b"GIF89a" + bytes(500_000) if suffix == "gif" else b"{}")
+            os.utime(cache / f"{number:032x}.{suffix}", (1e9 + number, 1e9 + number))
+    (cache / "notes.txt").write_bytes(bytes(2_000_000))  # not a gait's: left alone
+    served = Explore(explored_sweep, "--cache", cache, "--cache-size", "1")
+    served.stop()
+    assert sorted(p.name for p in cache.iterdir()) == [f"{2:032x}.gif", f"{2:032x}.json", "notes.txt"]
+    kept = GaitCache(cache, 1_000_000)
+    kept.put("f" * 32, {"cell": 0, "gaits": [], "seconds": 1.0}, b"GIF89a" + bytes(600_000))
+    assert sorted(p.name for p in cache.iterdir()) == ["f" * 32 + ".gif", "f" * 32 + ".json", "notes.txt"]
 
 
 def test_a_run_with_a_damaged_phases_file_is_left_out_with_a_note(explored_sweep, tmp_path):
