@@ -48,7 +48,9 @@ MOST_QUEUED = 8
 """Renders waiting at most; a click beyond them is answered 503 with a message."""
 MOST_BODIES = 4
 GAIT_SIZE = (240, 180)
-BODY = re.compile(r"final|phase:([0-9]{1,9})")
+NUMBER = r"[0-9]{1,9}"
+"""A number of the page's (a run, a cell, a phase): ASCII digits only, at most 9."""
+BODY = re.compile(rf"final|phase:({NUMBER})")
 """The bodies a click may ask for: the final one, or a phase's (ASCII digits)."""
 
 
@@ -279,7 +281,7 @@ def whole_number(text: str | int, message: str, status: int = 400) -> int:
     other digits, which `int` takes), at most 9 of them; a RequestError with `message`."""
     if isinstance(text, int) and not isinstance(text, bool) and text >= 0:
         return text
-    if not isinstance(text, str) or re.fullmatch(r"[0-9]{1,9}", text) is None:
+    if not isinstance(text, str) or re.fullmatch(NUMBER, text) is None:
         raise RequestError(message, status)
     return int(text)
 
