@@ -245,7 +245,7 @@ def test_what_cannot_be_held_is_refused_with_its_estimate_and_the_estimate_is_to
 ):
     from smol_dsl.rescoring import perturbations
 
-    monkeypatch.setattr(perturbations, "machine_memory", lambda: 1000)
+    monkeypatch.setattr(perturbations, "host_memory_bytes", lambda: 1000)
     code, err = cli(["robustness", str(robust_sweep), "-o", str(tmp_path / "out"), "--starts", "999"], capsys)
     assert code == 2 and "6 runs, 1006 samples each" in err and "would hold more than 50% of" in err, err
     assert "episodes of 20 steps to score" in err and not (tmp_path / "out").exists()

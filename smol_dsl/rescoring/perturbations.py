@@ -12,12 +12,12 @@ never mixes x1 (the final body itself: a control, not a change) with changes of 
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from smol_dsl.errors import UserInputError, counted
+from smol_dsl.runner.footprint import byte_size, host_memory_bytes
 from smol_dsl.tasks import task_spec
 
 if TYPE_CHECKING:
@@ -111,7 +111,7 @@ class Estimate:
     def __str__(self) -> str:
         return (
             f"{counted(self.runs, 'run')}, {counted(self.samples, 'sample')} each: {self.episodes:,} episodes of "
-            f"{self.episode_length} steps to score, about {_size(self.held_bytes)} of scores held for the medians"
+            f"{self.episode_length} steps to score, about {byte_size(self.held_bytes)} of scores held for the medians"
         )
 
 
@@ -126,14 +126,6 @@ def estimate(runs: Sequence[RunRecord], perturbations: Perturbations) -> Estimat
         episode_length=runs[0].config.episode_length if runs else 0,
         held_bytes=4 * cells * perturbations.largest,
     )
-
-
-def machine_memory() -> int | None:
-    """The machine's physical memory in bytes, where the system says."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def check_perturbations(runs: Sequence[RunRecord], perturbations: Perturbations) -> None:
@@ -239,19 +231,12 @@ def _check_run_body(run: RunRecord, channel: Channel, factors: Sequence[float]) 
 
 
 def _check_memory(cost: Estimate) -> None:
-    memory = machine_memory()
-    if memory is not None and cost.held_bytes > MEMORY_SHARE * memory:
+    memory = host_memory_bytes()
+    if cost.held_bytes > MEMORY_SHARE * memory:
         raise RobustnessError(
             f"measuring {cost} would hold more than {MEMORY_SHARE:.0%} of this machine's memory "
-            f"({_size(memory)}); give fewer starts or factors, or measure fewer runs at once"
+            f"({byte_size(memory)}); give fewer starts or factors, or measure fewer runs at once"
         )
-
-
-def _size(count: int) -> str:
-    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
-        if count >= size:
-            return f"{count / size:.1f} {unit}"
-    return f"{count} B"
 
 
 DEFAULT_PERTURBATIONS = Perturbations()

@@ -250,10 +250,10 @@ class Footprint:
         lines = [
             f"policy: [{layers}] MLP, {self.observations} observations -> {self.actions} actions: "
             f"{self.parameters:,} parameters; archive: {config.num_centroids} cells, "
-            f"{_size(self.archive_bytes)} per run, {_size(self.archives_bytes)} for {self.runs} run(s)",
+            f"{byte_size(self.archive_bytes)} per run, {byte_size(self.archives_bytes)} for {self.runs} run(s)",
             self._memory_line(),
-            f"checkpoint: {_size(self.checkpoint_bytes)}, rewritten in the background at up to "
-            f"{boundaries} phase boundaries (at most {_size(self.checkpoint_bytes * boundaries)} written in all)"
+            f"checkpoint: {byte_size(self.checkpoint_bytes)}, rewritten in the background at up to "
+            f"{boundaries} phase boundaries (at most {byte_size(self.checkpoint_bytes * boundaries)} written in all)"
             + _free_space(out_dir, self.checkpoint_bytes),
             f"evaluations: {self.runs} x ({config.evaluations:,} training + up to {self.reevaluations:,} "
             f"re-evaluation) = {_count(self.evaluations)} ({_count(self.evaluations * config.episode_length)} "
@@ -270,21 +270,22 @@ class Footprint:
     def _memory_line(self) -> str:
         layout = f"runs split {self.along_runs} way(s), each batch {self.along_population} way(s)"
         batches = f"for batches of {self.config.batch_size} ({self.parallel_runs} run(s) at once)"
-        held = f"{_size(self.baseline_bytes)} for this process, its compiled programs and runtime"
+        held = f"{byte_size(self.baseline_bytes)} for this process, its compiled programs and runtime"
         if self.memory.shares_host:
             archives = self.held_archives_bytes
             return (
-                f"memory ({self.memory.label} sharing the host's; {layout}): {held} + {_size(2 * archives)} of "
+                f"memory ({self.memory.label} sharing the host's; {layout}): {held} + {byte_size(2 * archives)} of "
                 f"archives held twice (re-evaluating, or beside the checkpoint's host copy) + "
-                f"{_size(self.host_peak_bytes - self.baseline_bytes - 2 * archives)} {batches} "
-                f"= {_size(self.needed_bytes)} of {_size(self.available_bytes)} host memory"
+                f"{byte_size(self.host_peak_bytes - self.baseline_bytes - 2 * archives)} {batches} "
+                f"= {byte_size(self.needed_bytes)} of {byte_size(self.available_bytes)} host memory"
             )
         return (
-            f"device memory ({self.memory.label}: {layout}): {_size(self.device_archive_bytes)} of archives while "
-            f"re-evaluating + {_size(self.device_batch_bytes)} {batches} = {_size(self.device_bytes)} per device "
-            f"of {_size(self.available_bytes)}; host memory: {held} + {_size(self.checkpoint_bytes)} for the "
-            f"checkpoint's copy + {_size(self.archive_bytes)} for one run's = {_size(self.host_bytes)} of "
-            f"{_size(self.memory.host_bytes)}"
+            f"device memory ({self.memory.label}: {layout}): {byte_size(self.device_archive_bytes)} of archives "
+            f"while re-evaluating + {byte_size(self.device_batch_bytes)} {batches} = {byte_size(self.device_bytes)} "
+            "per device "
+            f"of {byte_size(self.available_bytes)}; host memory: {held} + {byte_size(self.checkpoint_bytes)} for the "
+            f"checkpoint's copy + {byte_size(self.archive_bytes)} for one run's = {byte_size(self.host_bytes)} of "
+            f"{byte_size(self.memory.host_bytes)}"
         )
 
 
@@ -342,10 +343,11 @@ def _free_space(directory: Path | None, needed: int) -> str:
     except OSError:
         return ""
     warning = "; not enough for a checkpoint and its replacement" if free < 2 * needed else ""
-    return f"; {_size(free)} free in {existing}{warning}"
+    return f"; {byte_size(free)} free in {existing}{warning}"
 
 
-def _size(count: float) -> str:
+def byte_size(count: float) -> str:
+    """A number of bytes as people read it: 1.2 GB, 830.4 kB."""
     for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
         if count >= scale:
             return f"{count / scale:.1f} {unit}"
@@ -400,30 +402,30 @@ def fit_sweep(
     least = plan(runs, 1)
     what = "one run" if runs == 1 else f"{runs} runs"
     where = (
-        f"the {_size(least.available_bytes)} of host memory that the {memory.label} share"
+        f"the {byte_size(least.available_bytes)} of host memory that the {memory.label} share"
         if memory.shares_host
-        else f"the {_size(least.available_bytes)} of one {memory.platform} device"
+        else f"the {byte_size(least.available_bytes)} of one {memory.platform} device"
     )
     if memory.shares_host:
         twice = 2 * least.held_archives_bytes
         parts_text = (
-            f"{_size(least.baseline_bytes)} for this process and its compiled programs, {_size(twice)} of archives "
-            f"held twice (while re-evaluating, or beside the checkpoint's host copy), and "
-            f"{_size(least.host_peak_bytes - least.baseline_bytes - twice)} for batches of {config.batch_size}"
+            f"{byte_size(least.baseline_bytes)} for this process and its compiled programs, {byte_size(twice)} of "
+            f"archives held twice (while re-evaluating, or beside the checkpoint's host copy), and "
+            f"{byte_size(least.host_peak_bytes - least.baseline_bytes - twice)} for batches of {config.batch_size}"
         )
     else:
         parts_text = (
-            f"{_size(least.archive_bytes)} of archive per run, held twice while it is re-evaluated "
-            f"({_size(least.device_archive_bytes)} per device), plus {_size(least.device_batch_bytes)} for batches "
-            f"of {config.batch_size}"
+            f"{byte_size(least.archive_bytes)} of archive per run, held twice while it is re-evaluated "
+            f"({byte_size(least.device_archive_bytes)} per device), plus {byte_size(least.device_batch_bytes)} for "
+            f"batches of {config.batch_size}"
         )
     if least.needed_bytes <= least.available_bytes:  # the devices hold it, the host does not
-        where = f"the {_size(memory.host_bytes)} of host memory"
-        parts_text = f"{_size(least.host_bytes)} for the process and the checkpoint's host copy"
+        where = f"the {byte_size(memory.host_bytes)} of host memory"
+        parts_text = f"{byte_size(least.host_bytes)} for the process and the checkpoint's host copy"
         total = least.host_bytes
     else:
         total = least.needed_bytes
-    message = f"{what} of {config.task} need more than {where}: {parts_text}, {_size(total)} in all. "
+    message = f"{what} of {config.task} need more than {where}: {parts_text}, {byte_size(total)} in all. "
     most_seeds = largest_fitting(range(1, len(seeds)), lambda count: plan(runs_with(count), 1))
     if most_seeds is not None:
         message += (
