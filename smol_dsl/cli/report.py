@@ -119,5 +119,7 @@ def write_report(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     for mixing in report.environment_mixing:
         print(f"note: allowed to mix environments: {mixing}", file=sys.stderr)
+    for note in report.notes:
+        print(f"note: {note}", file=sys.stderr)
     print(f"wrote {', '.join(str(f) for f in report.files)}")
     return EXIT_OK

@@ -11,12 +11,13 @@ import html
 import io
 import json
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from smol_dsl.results.report_figures import archives_figure
 from smol_dsl.rundir import FinalArchive, RunRecord
-from smol_dsl.rundir.snapshots import END, Snapshot, read_snapshots
+from smol_dsl.rundir.snapshots import END, Snapshot, SnapshotsError, read_snapshots
 
 MOST_FRAMES = 40
 """Frames at most: a run of more phases is shown at the start and end of evenly spread ones."""
@@ -42,16 +43,29 @@ def moment_label(snapshot: Snapshot) -> str:
     return f"phase {snapshot.phase}, {when} (generation {snapshot.generation})"
 
 
-def phase_map_frames(
-    chosen: dict[str, RunRecord], low: Sequence[float], high: Sequence[float], task: str
-) -> list[tuple[str, bytes]]:
+@dataclass(frozen=True)
+class PhaseMaps:
+    """The report's phase maps: one (label, PNG) per moment, and a note for each chosen run
+    left out because its phases.npz cannot be read."""
+
+    frames: list[tuple[str, bytes]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def phase_map_frames(chosen: dict[str, RunRecord], low: Sequence[float], high: Sequence[float], task: str) -> PhaseMaps:
     """One PNG per moment of the runs' phases (each schedule's chosen run side by side, one
-    colour scale over every frame): (label, PNG). None of them for runs without phases.npz,
-    or whose snapshots do not line up (runs from before snapshots were kept: [])."""
-    series = {name: read_snapshots(run.directory) for name, run in chosen.items()}
+    colour scale over every frame). A run whose phases.npz is damaged is left out with a
+    note (the others are drawn); no frames at all where the rest have no phases.npz or their
+    snapshots do not line up (runs from before snapshots were kept)."""
+    series, notes = {}, []
+    for name, run in chosen.items():
+        try:
+            series[name] = read_snapshots(run.directory)
+        except SnapshotsError as error:
+            notes.append(f"the phase maps leave out {name}'s median run (seed {run.seed}): {error}")
     lengths = {len(snapshots) for snapshots in series.values()}
     if not series or 0 in lengths or len(lengths) != 1:
-        return []
+        return PhaseMaps([], notes)
     first = next(iter(series.values()))
     moments = chosen_moments(first)
     filled = [s.fitnesses[s.filled] for snapshots in series.values() for s in snapshots]
@@ -69,19 +83,20 @@ def phase_map_frames(
         image = io.BytesIO()
         figure.savefig(image, format="png", dpi=80)
         frames.append((moment_label(first[index]), image.getvalue()))
-    return frames
+    return PhaseMaps(frames, notes)
 
 
-def phase_maps_html(labels: Sequence[str]) -> str:
+def phase_maps_html(labels: Sequence[str], notes: Sequence[str] = ()) -> str:
     """The page's section: the frames (files beside the page) behind a slider and a play
-    button, the last frame (the final archives) shown first."""
-    if not labels:
-        return ""
+    button, the last frame (the final archives) shown first, and the notes of runs left out."""
     esc = html.escape
+    said = "".join(f'\n<p class="note">Note: {esc(note)}</p>' for note in notes)
+    if not labels:
+        return f'<h2 id="phases">Archives through the phases</h2>{said}' if notes else ""
     last = len(labels) - 1
     return f"""<h2 id="phases">Archives through the phases</h2>
 <p>Each schedule's median run, its archive at the start (after the re-evaluation into the phase's body) and at the
-end of each phase: the collapse at each change of body and the refill after it.</p>
+end of each phase: the collapse at each change of body and the refill after it.</p>{said}
 <figure id="phase-maps"><img id="phase-map" src="{esc(frame_name(last))}" alt="archives at {esc(labels[last])}"
 style="max-width: 100%"><figcaption><input type="range" id="phase-slider" min="0" max="{last}" value="{last}"
 style="width: 60%" aria-label="moment"> <button type="button" id="phase-play">play</button>

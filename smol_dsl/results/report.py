@@ -23,7 +23,7 @@ from smol_dsl.results.conditions import ABLATIONS
 from smol_dsl.results.output import check_writable_directory, write_files
 from smol_dsl.results.page import index_page
 from smol_dsl.results.paper import compare_with_paper
-from smol_dsl.results.phase_maps import PHASE_MAP_FILES, frame_name, phase_map_frames, phase_maps_html
+from smol_dsl.results.phase_maps import PHASE_MAP_FILES, PhaseMaps, frame_name, phase_map_frames, phase_maps_html
 from smol_dsl.results.report_figures import archives_figure, reevaluation_figure, results_figure
 from smol_dsl.results.robustness import Robustness, robustness_figure_and_tables, robustness_for_report
 from smol_dsl.results.robustness_tables import robustness_html, robustness_markdown
@@ -75,6 +75,7 @@ class Report:
     files: list[Path]
     comparison: Comparison | None = None  # beside the paper's table, for its tasks and metrics
     environment_mixing: list[str] = dataclasses.field(default_factory=list)  # allowed, and written in the report
+    notes: list[str] = dataclasses.field(default_factory=list)  # what the report left out and why (also in its files)
 
 
 def earlier_report(out_dir: str | Path) -> list[str]:
@@ -112,8 +113,10 @@ def render_report(
     comparison: Comparison | None = None,
     replay: ReplayElites | None = None,
     robustness: Robustness | None = None,
-) -> dict[str, bytes]:
-    """Every file of the report by name, in memory: table.md, pvalues.tex, scores.csv,
+) -> tuple[dict[str, bytes], list[str]]:
+    """Every file of the report by name, in memory, and the notes of what it left out (a
+    median run whose phases.npz is damaged leaves the phase maps; the notes are in table.md
+    and index.html too): table.md, pvalues.tex, scores.csv,
     paper-comparison.md and .tex (`comparison`: our p-values beside the paper's), the
     figures (PNG and PDF), with `gaits` > 0 a GIF of that many elites of each schedule's
     median run (`gaits-*.gif`: the best, then spread over the archive, rolled out by
@@ -122,6 +125,9 @@ def render_report(
     index.html get its section (`smol_dsl.results.robustness`), scores.csv each run's robust
     coverage per perturbation, and robustness.tex, .png and .pdf are written."""
     files: dict[str, bytes] = {}
+    low, high = descriptor_bounds(table.task)
+    chosen = {name: median_run(runs, table.metric) for name, runs in groups.items()}
+    phase_maps = phase_map_frames(chosen, low, high, table.task) if low else PhaseMaps()
     label = METRICS_SCHEMA[table.metric].axis_label
     caption = (
         f"{table.task} ({label}): median final scores and p-values of one-sided Mann-Whitney U tests, with "
@@ -129,7 +135,7 @@ def render_report(
     )
     described = runs_described(groups)
     what_ran = "\n".join(f"- **{heading}**: {markdown_escape(text)}" for heading, text in described)
-    notes = "".join(f"\n- note: {note}" for note in table.notes())
+    notes = "".join(f"\n- note: {note}" for note in [*table.notes(), *phase_maps.notes])
     robust = "" if robustness is None else "\n" + robustness_markdown(robustness, level=2)
     files["table.md"] = f"{caption}\n\n{table.markdown()}{notes}\n{robust}\n## What ran\n\n{what_ran}\n".encode()
     files["pvalues.tex"] = f"% {caption}\n{table.latex()}".encode()
@@ -146,12 +152,8 @@ def render_report(
             "evaluations, the median (line) and interquartile range (band) over seeds; the dashed line is where "
             "every schedule shown has its final body for good."
         )
-    low, high = descriptor_bounds(table.task)
-    frames: list[tuple[str, bytes]] = []
     if low:  # each schedule's run with the median final score, side by side
-        chosen = {name: median_run(runs, table.metric) for name, runs in groups.items()}
-        frames = phase_map_frames(chosen, low, high, table.task)
-        files.update({frame_name(index): png for index, (_, png) in enumerate(frames)})
+        files.update({frame_name(index): png for index, (_, png) in enumerate(phase_maps.frames)})
         panels = [(name, run.seed, run.final_archive()) for name, run in chosen.items()]
         by = table.metric.replace("_", " ")
         figures["archives"] = archives_figure(panels, low, high, f"{table.task}: final archives (median run by {by})")
@@ -187,9 +189,9 @@ def render_report(
         described,
         comparison is not None,
         robustness_html(robustness) if robustness is not None else "",
-        phase_maps_html([label for label, _ in frames]),
+        phase_maps_html([label for label, _ in phase_maps.frames], phase_maps.notes),
     )
-    return files
+    return files, phase_maps.notes
 
 
 def scores_csv(groups: dict[str, list[RunRecord]], robustness: Robustness | None = None) -> bytes:
@@ -274,6 +276,7 @@ def write_report(
     comparison = compare_with_paper(table, groups)
     measured = robustness_files_of(paths, robustness)
     robust = robustness_for_report(measured, groups, table.task) if measured else None
-    files = render_report(groups, table, gaits, comparison, replay, robust)
+    files, notes = render_report(groups, table, gaits, comparison, replay, robust)
     written = write_files(out_dir, files, remove=[name for name in earlier if name not in files])
-    return Report(table, written, comparison, environment_mixing([run for runs in groups.values() for run in runs]))
+    mixing = environment_mixing([run for runs in groups.values() for run in runs])
+    return Report(table, written, comparison, mixing, notes)
