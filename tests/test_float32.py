@@ -201,13 +201,15 @@ def edge_schedules(draw) -> str:
 
 
 MIN_ACCEPTED = 1 / 5
-"""Share of the generated schedules that must pass check: the claim is about those."""
+"""Share of the generated schedules that must pass check: the claim is about those. The
+examples are drawn derandomized (the same ones every run): hypothesis's search does not draw
+them independently, and a random run had once accepted 5 of 30, failing this check by chance."""
 
 
 def test_a_schedule_fails_check_or_is_finite_at_every_phase():
     outcomes: Counter[str] = Counter()
 
-    @settings(max_examples=examples(30), **COMMON)
+    @settings(max_examples=examples(30), derandomize=True, **COMMON)
     @given(
         text=hostile_schedules() | edge_schedules(),
         phase_counts=st.lists(st.integers(1, 1000), min_size=1, max_size=3),
