@@ -93,7 +93,7 @@ CASES = {
         "a division needs a non-zero argument, but t - 1/2 ranges over -0.5 .. 0.4",
         "divisions away from zero",
     ),
-    "reserved word": ("let tail = 2\n0% .. 100%: tail\n", 1, 1, "`tail` is a reserved word", "reserved: at, bell"),
+    "reserved word": ("let tail = 2\n0% .. 100%: tail\n", 1, 1, "`tail` is a reserved word", "reserved: and, at, bell"),
     "dangling decimal point": (
         "0% .. 90%: linear 1. -> 2\n" + TAIL,
         1,
@@ -216,7 +216,7 @@ def test_reserved_words_are_the_grammar_keywords():
 
     assert reserved_words() == set(
         "name description let bounds extinction continuous constant linear bell random expr tail "
-        "at width every increasing decreasing channel final".split()
+        "at width every increasing decreasing channel final pace when within phases and or".split()
     )
 
 

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from smol_dsl.cli.common import EXIT_OK, EXIT_USAGE, check_task, load_all, print_errors
+from smol_dsl.cli.common import EXIT_OK, EXIT_USAGE, check_task, load_all, positive_int, print_errors
 from smol_dsl.errors import ScheduleError
+from smol_dsl.rundir.presets import QUICK_COMMON
 
 if TYPE_CHECKING:
     import argparse
@@ -30,6 +31,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="TASK",
         help="also check the channels' targets against TASK's body, and print its actuators, links and groups",
     )
+    check.add_argument(
+        "--phases",
+        type=positive_int,
+        default=QUICK_COMMON["num_phases"],
+        metavar="N",
+        help="for a paced schedule, print the envelope over N phases: per phase the earliest and latest "
+        "development step and value whatever the run's metrics do (default %(default)s, the quick preset's; "
+        "the paper's is 100)",
+    )
     check.set_defaults(handle=check_schedules)
 
 
@@ -48,6 +58,12 @@ def check_schedules(args: argparse.Namespace) -> int:
             about = f" - {schedule.description}" if schedule.description else ""
             print(f"{schedule.path}: ok: {schedule.name}{about}")
             print(schedule.certificates_text())
+            if schedule.is_paced:
+                problem = schedule.tail_problem(args.phases)
+                if problem is not None:
+                    errors.append(f"{schedule.path}: {problem.worded({'num_phases': '--phases'})}")
+                else:
+                    print(schedule.envelope_text(args.phases))
     print_errors(errors)
     return EXIT_USAGE if errors else EXIT_OK
 

@@ -5,7 +5,8 @@ The parser's statements come in file order (`smol_dsl.language.syntax`). Assembl
 repeated), then collects the statements: a `channel` line opens its channel's section, and the
 lines before the first `channel` line are the gear channel's. A directive is given at most
 once where it belongs: `name`, `description` and `extinction` once per file, `bounds`,
-`continuous` and `final` once per section.
+`continuous`, `final` and `pace` once per section. A `pace` line before the first `channel`
+line of a file with channels is the file's: it paces every channel without one of its own.
 """
 
 from __future__ import annotations
@@ -138,6 +139,8 @@ class _Program:
         for section in self.sections:
             if section.channel != line.channel:  # targets in any order: a channel holds them sorted
                 continue
+            if section.line is None and not section.segments and set(section.directives.seen) <= {"pace"}:
+                continue  # only the file's `pace` line came before: no gear section yet
             if section.line is None:
                 raise ScheduleError(
                     f"`channel {line.text}` is given twice: the lines before the first `channel` line "
@@ -155,6 +158,11 @@ class _Program:
 
     def build(self) -> tree.Program:
         sections = self.sections
+        pace = None
+        if sections and sections[0].line is None and not sections[0].segments and len(sections) > 1:
+            pace = sections[0].directives.values.pop("pace", None)  # the file's: before every channel line
+            sections[0].directives.seen.pop("pace", None)
+            sections = sections[1:] if not sections[0].directives.seen else sections
         if sections and sections[0].line is None and not sections[0].segments and len(sections) > 1:
             seen = sections[0].directives.seen
             key, span = min(seen.items(), key=lambda item: (item[1].line, item[1].column))
@@ -164,7 +172,7 @@ class _Program:
                 hint="move it below the `channel` line of the channel it is for",
             )
         built = [section.build() for section in sections] or [tree.Section(GEAR)]
-        return tree.Program(lets=tuple(self.lets), sections=tuple(built), **self.directives.values)
+        return tree.Program(lets=tuple(self.lets), sections=tuple(built), pace=pace, **self.directives.values)
 
 
 def _channel(program: _Program, line: tree.ChannelLine) -> None:
@@ -187,6 +195,10 @@ def _final(program: _Program, statement: tree.Final) -> None:
     program.section(statement.span).directives.give("final", statement.span, statement)
 
 
+def _pace(program: _Program, statement: tree.Pace) -> None:
+    program.section(statement.span).directives.give("pace", statement.span, statement)
+
+
 def _continuous(program: _Program, statement: tree.Continuous) -> None:
     program.section(statement.span).directives.give("continuous", statement.span, True)
 
@@ -206,6 +218,7 @@ _COLLECT: dict[type, Callable[[_Program, Any], None]] = {
     tree.Bounds: _bounds,
     tree.Final: _final,
     tree.Continuous: _continuous,
+    tree.Pace: _pace,
     tree.Extinction: _extinction,
     tree.StringDirective: _string,
 }

@@ -16,6 +16,7 @@ from smol_dsl.errors import ScheduleError, Span
 from smol_dsl.language.channels import GEAR
 from smol_dsl.language.expressions import Scope
 from smol_dsl.language.grammar import reserved_words
+from smol_dsl.language.pacing import Pacing, compile_pace
 from smol_dsl.language.shapes import SegmentContext
 from smol_dsl.language.symbolic import (
     MAX_RANDOM_DRAWS,
@@ -182,4 +183,36 @@ def compile_program(program: tree.Program) -> SymbolicProgram:
         curves=tuple(curves),
         extinction=extinction,
         extinction_span=extinction_span,
+        pacing=_pacing(scope, program, curves),
     )
+
+
+def _pacing(scope: Scope, program: tree.Program, curves: list[SymbolicCurve]) -> Pacing | None:
+    """The file's clocks: one per `pace` line (the file's first), and the clock each channel
+    reads: its own `pace` line's, else the file's, else none (the budget's). A paced channel
+    has no random segment: its draws are laid out on the budget's clock."""
+    clocks, channel_clocks = [], []
+    shared = None
+    if program.pace is not None:
+        clocks.append(compile_pace(scope, program.pace))
+        shared = 0
+    for section, curve in zip(program.sections, curves):
+        clock = shared
+        if section.pace is not None:
+            clocks.append(compile_pace(scope, section.pace))
+            clock = len(clocks) - 1
+        if clock is not None:
+            random = next((segment for segment in curve.segments if segment.draws is not None), None)
+            if random is not None:
+                pace = section.pace or program.pace
+                assert pace is not None
+                raise ScheduleError(
+                    f"{curve.channel.name} is paced and has a `random` segment, which pacing does not support",
+                    span=pace.span,
+                    hint=f"a random segment's draws follow the budget's phases (segment on line {random.span.line}); "
+                    "pace a channel without random segments, or drop the `pace` line",
+                )
+        channel_clocks.append(clock)
+    if not clocks:
+        return None
+    return Pacing(tuple(clocks), tuple(channel_clocks))

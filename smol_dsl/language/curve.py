@@ -118,6 +118,8 @@ class Curve:
         self.source: str = source
         self.path: str | None = path
         self.segments: tuple[SymbolicSegment, ...] = symbolic.segments
+        self.place = symbolic.place
+        """Where its `channel` line names it and its targets (None: the implicit gear channel)."""
         self.final: float = float(symbolic.final)
         """The channel's value over its tail: its body at the end of the run (1 unless declared)."""
         self.tail_start: Fraction = fraction(tail_start(symbolic))

@@ -22,6 +22,8 @@ from smol_dsl.language import tree
 from smol_dsl.language.symbolic import percent
 
 MAX_EXPONENT = 10_000
+PACING_NAMES = ("coverage", "max_fitness", "qd_score", "waited", "before", "after")
+"""The names a `pace` condition reads (`smol_dsl.language.pacing.NAMES`), built in."""
 
 FUNCTIONS: dict[str, tuple[Callable[..., sp.Expr], int | None]] = {
     "exp": (sp.exp, 1),
@@ -59,7 +61,7 @@ class Scope:
                 span=let.span,
                 hint="choose another name for this constant; reserved: " + ", ".join(sorted(self.reserved)),
             )
-        if let.name in self.constants or let.name in FUNCTIONS or let.name in ("t", "u"):
+        if let.name in self.constants or let.name in FUNCTIONS or let.name in ("t", "u") or let.name in PACING_NAMES:
             what = "a built-in name" if let.name not in self.constants or let.name in CONSTANTS else "already defined"
             raise ScheduleError(
                 f"`{let.name}` is {what}",

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import difflib
 import math
 import os
 import re
@@ -18,11 +17,13 @@ import numpy as np
 
 from smol_dsl.errors import Message, ScheduleError, Setting, Span
 from smol_dsl.language.assembly import parse_program
-from smol_dsl.language.channels import CHANNEL_KINDS, GEAR, Channel, differing_finals
+from smol_dsl.language.channels import GEAR, Channel, differing_finals
 from smol_dsl.language.compiler import compile_program
 from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
+from smol_dsl.language.pacing import Pacing, envelope_text, pacing_text
 from smol_dsl.language.symbolic import SymbolicCurve, SymbolicProgram, SymbolicSegment, percent
+from smol_dsl.language.targets import check_targets
 from smol_dsl.language.verify import verify
 
 # JAX is imported inside the methods that evaluate: parsing and checking a schedule never load it.
@@ -83,6 +84,8 @@ class Schedule:
         self._symbolic: dict[Channel, SymbolicCurve] = {curve.channel: curve for curve in program.curves}
         self.tail_start: Fraction = max(curve.tail_start for curve in self._curves.values())
         """Where every channel is at its final value for good: the latest of their tails' starts."""
+        self.pacing: Pacing | None = program.pacing
+        """The file's `pace` lines (None: every channel follows the budget's phases)."""
 
     # ------------------------------------------------------------------ channels
     @property
@@ -113,10 +116,12 @@ class Schedule:
 
     def certificates_text(self) -> str:
         """The certificates as `smol-dsl check` prints them: one per channel, each under a
-        `channel NAME:` line when there are several."""
+        `channel NAME:` line when there are several, then the pacing's."""
         if len(self._curves) == 1:
-            return str(next(iter(self._curves.values())).certificate)
-        return "\n".join(f"channel {channel.name}:\n{curve.certificate}" for channel, curve in self._curves.items())
+            text = str(next(iter(self._curves.values())).certificate)
+        else:
+            text = "\n".join(f"channel {channel.name}:\n{curve.certificate}" for channel, curve in self._curves.items())
+        return text + ("\n" + pacing_text(self) if self.pacing is not None else "")  # each clock's proofs
 
     @property
     def final_body(self) -> dict[Channel, float]:
@@ -134,41 +139,11 @@ class Schedule:
     def check_targets(
         self, targets: Mapping[str, Collection[str]] | None, task: str, listing: Mapping[str, str] | None = None
     ) -> None:
-        """Refuse, with a located ScheduleError, a channel target that is not among
-        `targets[part]` (for each part channels name, "actuators" and "links": every name and
-        group the task's body has), or any target when `targets` is None (a task that does not
-        list its body). `task` names the task in messages; `listing[part]` says what it has,
-        for the hint (`smol_dsl.tasks.Anatomy.targets` and `listing` give both)."""
-        for channel in self.channels:
-            if not channel.targets:
-                continue
-            place = self._symbolic[channel].place
-            assert place is not None, "a channel with targets has a `channel` line"
-            part = CHANNEL_KINDS[channel.kind].part or "parts"
-            if targets is None:
-                raise ScheduleError(
-                    f"task {task} does not list its {part}, so `{channel.name}` cannot name them",
-                    span=_joined(place.target_spans),
-                    hint=f"write `channel {channel.kind}` to scale all of them, or use a task that lists its body",
-                    source=self.source,
-                    path=self.path,
-                )
-            known = list(targets.get(part, ()))
-            unknown = [target for target in place.written if target not in known]
-            if not unknown:
-                continue
-            target = unknown[0]
-            close = _closest(target, known)
-            what = (listing or {}).get(part, f"{part}: {', '.join(known)}")
-            other = next((p for p, names in targets.items() if p != part and target in names), None)
-            elsewhere = f"`{target}` is one of {task}'s {other}, and {channel.kind}[...] names {part}; " * bool(other)
-            raise ScheduleError(
-                f"task {task} has no {part} named `{target}`",
-                span=place.target_spans[place.written.index(target)],
-                hint=elsewhere + (f"did you mean `{close}`? " if close else "") + f"{task}'s {what}",
-                source=self.source,
-                path=self.path,
-            )
+        """Refuse, with a located ScheduleError, a channel target not among `targets[part]`
+        ("actuators", "links": every name and group of the task's body), or any target for
+        `targets` None; `listing[part]` says what the task `task` has, for the hint
+        (`smol_dsl.tasks.Anatomy.targets` and `listing` give both)."""
+        check_targets(self, targets, task, listing)
 
     # ------------------------------------------------------------------ all channels in JAX
     def phase_value(
@@ -255,6 +230,60 @@ class Schedule:
             + Setting("num_phases")
             + f" {least} or more"
         )
+
+    # ------------------------------------------------------------------ pacing
+    @property
+    def is_paced(self) -> bool:
+        """Whether some channel waits for the archive (a `pace` line)."""
+        return self.pacing is not None
+
+    def clock_of(self, channel: Channel | str) -> int | None:
+        """The index of the clock `channel` reads in `pacing.clocks`, or None (the budget's)."""
+        channel = _as_channel(channel)
+        if self.pacing is None or channel not in self._curves:
+            return None
+        return self.pacing.channel_clocks[list(self._curves).index(channel)]
+
+    def tail_phase(self, num_phases: int) -> int:
+        """The first of `num_phases` phases wholly in every channel's tail: from it on, the
+        final body whatever a paced run's metrics did."""
+        return num_phases - self.tail_phases(num_phases)
+
+    def channel_tail_phases(self, num_phases: int, channels: Sequence[Channel | str] | None = None) -> tuple[int, ...]:
+        """Per channel of `channels` (default the file's), the first phase wholly in its own
+        tail (0 for a channel the file does not declare: it is 1 throughout)."""
+        check_phases(num_phases)
+        return tuple(
+            math.ceil(self._curves[channel].tail_start * num_phases) if channel in self._curves else 0
+            for channel in self._chosen(channels)
+        )
+
+    def phase_indices(
+        self,
+        development: jax.typing.ArrayLike,
+        phase: jax.typing.ArrayLike,
+        num_phases: int,
+        channels: Sequence[Channel | str] | None = None,
+    ) -> jax.Array:
+        """Per channel of `channels` (default the file's), the open-loop phase whose value it
+        has during `phase` given the clocks' `development` (K,): `phase` itself for a channel
+        on the budget's clock, in its tail, or not declared. A paced run's body in `phase` is
+        `phase_values(num_phases)[indices, column]`; jittable (`phase` may be traced)."""
+        import jax.numpy as jnp
+
+        chosen = self._chosen(channels)
+        tails = self.channel_tail_phases(num_phases, chosen)
+        if self.pacing is None:
+            return jnp.full((len(chosen),), jnp.asarray(phase, jnp.int32))
+        clocks = tuple(self.clock_of(channel) for channel in chosen)
+        return Pacing(self.pacing.clocks, clocks).indices(development, phase, tails)
+
+    def envelope_text(self, num_phases: int) -> str:
+        """Per phase of `num_phases`, each paced channel's lowest and highest development
+        step and value whatever the metrics do (the earliest and latest trajectories), and
+        the largest jump into the tail."""
+        check_phases(num_phases)
+        return envelope_text(self, num_phases)
 
     @property
     def is_random(self) -> bool:
@@ -345,28 +374,6 @@ def _as_channel(channel: Channel | str) -> Channel:
     """A channel, or the channel a name writes (ValueError for a name that is no channel,
     TypeError for what is neither)."""
     return channel if isinstance(channel, Channel) else Channel.parse(channel)
-
-
-def _closest(target: str, known: Sequence[str]) -> str | None:
-    """The known name a mistyped target most likely means: the longest one it starts with
-    (`thigh` for `thigh_joint`), else the shortest one that starts with it (`thigh_joint`
-    for `thigh`), else the closest spelling."""
-    shorter = [name for name in known if target.startswith(name)]
-    if shorter:
-        return max(shorter, key=len)
-    longer = [name for name in known if name.startswith(target)]
-    if longer:
-        return min(longer, key=len)
-    close = difflib.get_close_matches(target, list(known), n=1)
-    return close[0] if close else None
-
-
-def _joined(spans: Sequence[Span]) -> Span:
-    """One span from the first to the last of spans on one line."""
-    first, last = spans[0], spans[-1]
-    if first.line != last.line:
-        return first
-    return Span(first.line, first.column, last.column + last.length - first.column)
 
 
 def parse(text: str, *, path: str | os.PathLike[str] | None = None) -> Schedule:

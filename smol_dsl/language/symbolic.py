@@ -20,6 +20,7 @@ from smol_dsl.language.channels import GEAR, Channel
 
 if TYPE_CHECKING:
     from smol_dsl.errors import Span
+    from smol_dsl.language.pacing import Pacing
     from smol_dsl.language.shapes import Shape
 
 T = sp.Symbol("t", real=True)
@@ -145,6 +146,8 @@ class SymbolicProgram:
     curves: tuple[SymbolicCurve, ...]
     extinction: sp.Expr
     extinction_span: Span | None
+    pacing: Pacing | None = None
+    """The file's `pace` lines, compiled (None: every channel on the budget's clock)."""
 
     @property
     def channels(self) -> tuple[Channel, ...]:

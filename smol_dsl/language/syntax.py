@@ -137,6 +137,19 @@ class _ToTree(Transformer):
     def final_decl(self, meta: Any, children: list[Any]) -> tree.Final:
         return tree.Final(children[0], _span_of_meta(meta))
 
+    def comparison(self, meta: Any, children: list[Any]) -> tree.Comparison:
+        left, op, right = children
+        return tree.Comparison(str(op), left, right, _span_of_meta(meta))  # type: ignore[arg-type]
+
+    def either(self, meta: Any, children: list[Any]) -> tree.Logical:
+        return tree.Logical("or", children[0], children[1], _span_of_meta(meta))
+
+    def both(self, meta: Any, children: list[Any]) -> tree.Logical:
+        return tree.Logical("and", children[0], children[1], _span_of_meta(meta))
+
+    def pace_decl(self, meta: Any, children: list[Any]) -> tree.Pace:
+        return tree.Pace(children[0], children[1], _span_of_meta(meta))
+
     def channel_targets(self, meta: Any, children: list[Token | None]) -> tree.Targets:
         names = tuple(tree.Name(str(child), _span_of_token(child)) for child in children if child is not None)
         return tree.Targets(names, _span_of_meta(meta))

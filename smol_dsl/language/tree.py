@@ -145,7 +145,40 @@ class ChannelDecl:
     span: Span
 
 
-Statement = Segment | Let | Bounds | Extinction | Final | StringDirective | Continuous | ChannelDecl
+@dataclass(frozen=True)
+class Comparison:
+    """`LEFT OP RIGHT` in a pace condition."""
+
+    op: Literal[">=", "<=", ">", "<"]
+    left: Expr
+    right: Expr
+    span: Span
+
+
+@dataclass(frozen=True)
+class Logical:
+    """`LEFT and RIGHT` or `LEFT or RIGHT` in a pace condition."""
+
+    op: Literal["and", "or"]
+    left: Condition
+    right: Condition
+    span: Span
+
+
+Condition = Comparison | Logical
+
+
+@dataclass(frozen=True)
+class Pace:
+    """`pace when CONDITION within N phases`: development moves on where the condition holds
+    at a phase's end, or once the body has been held N phases."""
+
+    condition: Condition
+    within: Expr
+    span: Span
+
+
+Statement = Segment | Let | Bounds | Extinction | Final | StringDirective | Continuous | ChannelDecl | Pace
 """One line of a file, in the parser's output."""
 
 # ---------------------------------------------------------------- the assembled program
@@ -183,6 +216,7 @@ class Section:
     bounds: Bounds | None = None
     continuous: bool = False
     final: Final | None = None
+    pace: Pace | None = None
     segments: tuple[Segment, ...] = ()
 
 
@@ -194,4 +228,7 @@ class Program:
     description: str | None = None
     lets: tuple[Let, ...] = ()
     extinction: Extinction | None = None
+    pace: Pace | None = None
+    """A `pace` line before the first `channel` line of a file with channels: every channel's
+    without one of its own (in a file without `channel` lines, `pace` is the gear section's)."""
     sections: tuple[Section, ...] = field(default_factory=tuple)
