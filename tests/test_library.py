@@ -19,10 +19,12 @@ def test_library_has_every_condition_of_the_paper_and_the_channel_curricula(libr
         "extinction-50",
         "growth",
         "human",
+        "human-paced",
         "leg-damage",
         "low-gravity",
         "random",
         "smol",
+        "smol-paced",
         "smol-reverse",
         "vanilla",
     ]

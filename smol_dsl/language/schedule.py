@@ -21,7 +21,8 @@ from smol_dsl.language.channels import GEAR, Channel, differing_finals
 from smol_dsl.language.compiler import compile_program
 from smol_dsl.language.curve import Curve, check_phases
 from smol_dsl.language.library import library_dir, library_names
-from smol_dsl.language.pacing import Pacing, envelope_text, pacing_text
+from smol_dsl.language.pacing import Pacing
+from smol_dsl.language.pacing_certificate import envelope_text, pacing_text
 from smol_dsl.language.symbolic import SymbolicCurve, SymbolicProgram, SymbolicSegment, percent
 from smol_dsl.language.targets import check_targets
 from smol_dsl.language.verify import verify
@@ -231,7 +232,7 @@ class Schedule:
             + f" {least} or more"
         )
 
-    # ------------------------------------------------------------------ pacing
+    # ------------------------------------------------------------------ pacing (language/pacing.py)
     @property
     def is_paced(self) -> bool:
         """Whether some channel waits for the archive (a `pace` line)."""
@@ -279,10 +280,8 @@ class Schedule:
         return Pacing(self.pacing.clocks, clocks).indices(development, phase, tails)
 
     def envelope_text(self, num_phases: int) -> str:
-        """Per phase of `num_phases`, each paced channel's lowest and highest development
-        step and value whatever the metrics do (the earliest and latest trajectories), and
-        the largest jump into the tail."""
-        check_phases(num_phases)
+        """Per phase of `num_phases`, each paced channel's lowest and highest development step
+        and value whatever the metrics do, and the largest jump into the tail."""
         return envelope_text(self, num_phases)
 
     @property

@@ -125,6 +125,12 @@ class ReevaluationCounts:
         survived = reevaluated - died
         return cls(reevaluated, non_finite, died, kept, filled - kept, survived - filled)
 
+    @classmethod
+    def none(cls, runs: int) -> ReevaluationCounts:
+        """The counts of `runs` archives none of which was re-evaluated."""
+        zeros = np.zeros(runs, dtype=np.int64)
+        return cls(zeros, zeros, zeros, zeros, zeros, zeros)
+
     @property
     def filled(self) -> np.ndarray:
         """The cells filled after the re-evaluation."""

@@ -24,7 +24,7 @@ from smol_dsl.results.output import check_writable_directory, write_files
 from smol_dsl.results.page import index_page
 from smol_dsl.results.paper import compare_with_paper
 from smol_dsl.results.phase_maps import PHASE_MAP_FILES, PhaseMaps, frame_name, phase_map_frames, phase_maps_html
-from smol_dsl.results.report_figures import archives_figure, reevaluation_figure, results_figure
+from smol_dsl.results.report_figures import archives_figure, bodies_figure, reevaluation_figure, results_figure
 from smol_dsl.results.robustness import Robustness, robustness_figure_and_tables, robustness_for_report
 from smol_dsl.results.robustness_tables import robustness_html, robustness_markdown
 from smol_dsl.results.runs import METRICS, ReportError, environment_mixing, load_runs, median_run, runs_described
@@ -171,6 +171,14 @@ def render_report(
             "Re-evaluations: at every phase boundary, the elites that kept their own cell and the cells filled "
             "after re-evaluating the archive in the new body, in % of the cells filled before (median and "
             "interquartile range over seeds)."
+        )
+    bodies = bodies_figure(groups, f"{table.task}: the bodies trained in (each run, median and IQR over seeds)")
+    if bodies is not None:  # some run is paced: its body followed its archive
+        figures["bodies"] = bodies
+        captions["bodies"] = (
+            "Bodies: the factor of every scheduled channel each run trained in at every phase (thin lines), and "
+            "per schedule the median and interquartile range over seeds; a paced schedule's runs move on when "
+            "their archives meet its condition, so their curves differ."
         )
     for stem, figure in figures.items():
         for suffix in ("png", "pdf"):

@@ -1,6 +1,7 @@
 """The report's figures, across runs grouped by schedule: the scores' median and
 interquartile range over seeds against training evaluations (`results_figure`), how much of
-the archive each change of body keeps (`reevaluation_figure`), and final archives side by
+the archive each change of body keeps (`reevaluation_figure`), the bodies runs trained in
+where some run is paced (`bodies_figure`), and final archives side by
 side on one colour scale (`archives_figure`); each schedule in its paper colour
 (`schedule_styles`).
 """
@@ -64,8 +65,9 @@ def schedule_styles(names: Sequence[str]) -> list[dict[str, Any]]:
     next ones for others; past LEGEND_INSIDE schedules, `series_styles`' colours and dashes."""
     if len(names) > LEGEND_INSIDE:
         return series_styles(len(names))
-    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
-    return [{"color": COLORS.get(name, colors[(i + len(COLORS)) % len(colors)])} for i, name in enumerate(names)]
+    taken = {COLORS[name] for name in names if name in COLORS}
+    free = iter([color for color in matplotlib.rcParams["axes.prop_cycle"].by_key()["color"] if color not in taken])
+    return [{"color": COLORS[name] if name in COLORS else next(free)} for name in names]
 
 
 REEVALUATION_PANELS = (
@@ -81,12 +83,40 @@ def reevaluation_shares(run: RunRecord) -> tuple[np.ndarray, dict[str, np.ndarra
     rows = [row for row in run.rows if row["event"] == "reevaluate"]
     if not rows or rows[0]["reevaluated"] is None:
         return None
-    before = np.asarray([row["reevaluated"] for row in rows], dtype=float)
-    before[before == 0] = np.nan
-    kept = np.asarray([row["kept"] for row in rows], dtype=float)
-    filled = kept + np.asarray([row["moved"] for row in rows], dtype=float)
-    phases = np.asarray([row["phase"] for row in rows])
+    phases = np.arange(1, run.config.num_phases)  # every boundary; a paced run's held ones are NaN
+    before, kept, filled = (np.full(len(phases), np.nan) for _ in range(3))
+    for row in rows:
+        at = row["phase"] - 1
+        before[at] = row["reevaluated"] or np.nan
+        kept[at], filled[at] = row["kept"], row["kept"] + row["moved"]
     return phases, {"kept": 100 * kept / before, "filled": 100 * filled / before}
+
+
+def bodies_figure(groups: Mapping[str, Sequence[RunRecord]], title: str) -> Figure | None:
+    """The body each run trained in at every phase, one panel per scheduled factor (alpha,
+    mass, ...): per schedule every run's (thin) and the median and interquartile range over
+    seeds, so that a paced schedule's realised curves show beside the others' fixed ones.
+    None when no run is paced (every run's body is then its schedule's curve)."""
+    if not any(run.paced for runs in groups.values() for run in runs):
+        return None
+    columns = list(dict.fromkeys(name for runs in groups.values() for run in runs for name in run.body_columns))
+    figure = Figure(figsize=(max(7.0, 4.2 * len(columns) + 1), 3.6), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(1, len(columns)))
+    for ax, column in zip(axes, columns, strict=True):
+        for (name, runs), style in zip(groups.items(), schedule_styles(list(groups)), strict=True):
+            curves = np.stack([run.phase_column(column) for run in runs])
+            phases = np.arange(curves.shape[1])
+            for curve in curves:
+                ax.step(phases, curve, where="post", color=style["color"], lw=0.6, alpha=0.35)
+            low, median, high = np.percentile(curves, [25, 50, 75], axis=0)
+            ax.step(phases, median, where="post", lw=1.6, label=legend_label(f"{name} ({len(runs)})"), **style)
+            ax.fill_between(phases, low, high, step="post", color=style["color"], alpha=0.2, lw=0)
+        ax.set_xlabel("phase")
+        ax.set_ylabel(METRICS_SCHEMA[column].label if column in METRICS_SCHEMA.names else column)
+        ax.grid(alpha=0.25)
+    place_legend(figure, axes[0], title="schedule (runs)", title_fontsize=8)
+    figure.suptitle(title)
+    return figure
 
 
 def reevaluation_figure(groups: Mapping[str, Sequence[RunRecord]], title: str) -> Figure | None:
@@ -110,7 +140,8 @@ def reevaluation_figure(groups: Mapping[str, Sequence[RunRecord]], title: str) -
                 warnings.simplefilter("ignore", RuntimeWarning)  # a boundary where every archive was empty
                 low, median, high = np.nanpercentile(values, [25, 50, 75], axis=0)
             phases = shares[0][0]
-            ax.plot(phases, median, lw=1.4, label=legend_label(f"{name} ({len(shares)})"), **style)
+            # markers: a paced schedule's boundaries where its runs held are gaps (NaN)
+            ax.plot(phases, median, lw=1.4, marker="o", ms=2.5, label=legend_label(f"{name} ({len(shares)})"), **style)
             ax.fill_between(phases, low, high, color=style["color"], alpha=0.2, lw=0)
         ax.set_xlabel("phase boundary (the phase it starts)")
         ax.set_ylabel(label)

@@ -14,8 +14,9 @@ Modules, one concept each:
 - `config`: `RunConfig`, config.json, and its checked reader `read_config`;
 - `presets`: a run's settings by name (`PRESETS`: `paper`, `quick`), `preset_config`;
 - `metrics`: metrics.csv's columns (`METRICS_SCHEMA`, one `Column` per column; a run's body
-  is one column per channel: `column_name`, `metrics_schema(channels)`, `scheduled_columns`,
-  and a row's values `body_columns`) and its writer `MetricsLog`;
+  is one column per channel: `column_name`, `metrics_schema(channels, clocks)`, `scheduled_columns`,
+  and a row's values `body_columns`; a paced run's `development_names`; the events of a
+  boundary's row, `BOUNDARY_EVENTS`) and its writer `MetricsLog`;
 - `metrics_reader`: the checked reader `read_metrics` (`schema_of_header`), and where the
   final-body tail starts (`first_tail_phase`, `final_body_evaluations`);
 - `certificate`: certificate.json and .txt;
@@ -93,9 +94,12 @@ from smol_dsl.rundir.layout import (
 )
 from smol_dsl.rundir.metrics import (
     ALPHA,
+    BOUNDARY_EVENTS,
     EVENTS,
+    HOLD,
     METRIC_FIELDS,
     METRICS_SCHEMA,
+    REEVALUATION,
     REEVALUATION_FIELDS,
     SCORES,
     Column,
@@ -104,6 +108,7 @@ from smol_dsl.rundir.metrics import (
     body_columns,
     channel_column,
     column_name,
+    development_names,
     metrics_row,
     metrics_schema,
     scheduled_columns,
@@ -118,6 +123,7 @@ __all__ = [
     "ARCHIVE_ARRAYS",
     "ARCHIVE_FIGURE",
     "ARCHIVE_FILE",
+    "BOUNDARY_EVENTS",
     "CERTIFICATE_FILE",
     "CERTIFICATE_TEXT_FILE",
     "CHECKPOINT_FILE",
@@ -126,6 +132,7 @@ __all__ = [
     "EVENTS",
     "FILES",
     "GENOTYPES",
+    "HOLD",
     "LANES",
     "LOCK_FILE",
     "MEDIAN",
@@ -134,6 +141,7 @@ __all__ = [
     "METRICS_SCHEMA",
     "METRIC_FIELDS",
     "PRESETS",
+    "REEVALUATION",
     "REEVALUATION_FIELDS",
     "RESUME_COMPARED",
     "ROBUSTNESS_FILE",
@@ -160,6 +168,7 @@ __all__ = [
     "channel_column",
     "column_name",
     "describe_environment",
+    "development_names",
     "environment_differences",
     "files_markdown",
     "final_body_evaluations",

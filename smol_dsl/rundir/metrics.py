@@ -20,7 +20,7 @@ from typing import Any
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.rundir.files import write_text
 
-EVENTS = ("init", "train", "reevaluate", "reseed")
+EVENTS = ("init", "train", "reevaluate", "reseed", "hold")
 """The values of metrics.csv's `event` column."""
 
 
@@ -174,6 +174,9 @@ class MetricsSchema:
 
 
 REEVALUATION = "reevaluate"
+HOLD = "hold"
+BOUNDARY_EVENTS = (REEVALUATION, HOLD)
+"""The events of a phase boundary's row: it starts the next phase in the same generation."""
 REEVALUATION_COLUMNS = (
     Column("reevaluated", int, "elites re-scored: the cells filled before the re-evaluation", only_on=REEVALUATION),
     Column("kept", int, "elites that kept their own cell", only_on=REEVALUATION),
@@ -217,8 +220,9 @@ METRICS_SCHEMA = MetricsSchema(
     )
 )
 """metrics.csv's columns. `event` is `init` (generation 0's random population), `train` (a
-generation), `reevaluate` (the archive re-scored at a phase boundary) or `reseed` (a
-generation that re-seeded an archive extinction emptied)."""
+generation), `reevaluate` (the archive re-scored at a phase boundary), `reseed` (a
+generation that re-seeded an archive extinction emptied) or `hold` (a phase boundary at which
+a paced schedule's body stayed as it was: nothing re-scored, the archive kept as it is)."""
 METRIC_FIELDS = METRICS_SCHEMA.names
 """metrics.csv's header."""
 SCORES = ("max_fitness", "coverage", "qd_score")
@@ -240,10 +244,34 @@ def channel_column(name: str) -> Column:
     return Column(name, float, f"the phase's {name} factor", valid=_positive, expected="a finite number above 0")
 
 
-def metrics_schema(channels: Sequence[Channel] = ()) -> MetricsSchema:
+DEVELOPMENT = "development"
+"""A paced run's column: the phase of its schedule's curve whose body it trains in."""
+
+
+def development_names(clocks: int) -> tuple[str, ...]:
+    """The development columns of a schedule of `clocks` `pace` lines: `development` for one,
+    `development_1`, `development_2`, ... (in the file's order) for more, none for 0."""
+    if clocks == 1:
+        return (DEVELOPMENT,)
+    return tuple(f"{DEVELOPMENT}_{k + 1}" for k in range(clocks))
+
+
+def development_column(name: str) -> Column:
+    """A paced run's development column (`development_names`)."""
+    return Column(
+        name,
+        int,
+        "the development step of a paced schedule's clock: the phase of its curve (on the budget's phases) "
+        "whose body the row's phase trains in",
+    )
+
+
+def metrics_schema(channels: Sequence[Channel] = (), clocks: int = 0) -> MetricsSchema:
     """The columns of a run of these channels: METRICS_SCHEMA, whose `alpha` is plain gear's,
-    and one column per other channel right after `alpha`, in the order given."""
+    one column per other channel right after `alpha`, in the order given, and after them a
+    paced schedule's development columns, one per clock (`development_names`)."""
     extra = tuple(channel_column(channel.name) for channel in channels if channel != GEAR)
+    extra += tuple(development_column(name) for name in development_names(clocks))
     if not extra:
         return METRICS_SCHEMA
     at = METRICS_SCHEMA.names.index(ALPHA) + 1

@@ -15,7 +15,14 @@ from typing import TYPE_CHECKING, Any
 
 from smol_dsl.language.channels import Channel
 from smol_dsl.rundir.layout import CONFIG_FILE, RunDirectoryError, leave_out
-from smol_dsl.rundir.metrics import METRICS_SCHEMA, REEVALUATION_FIELDS, MetricsSchema, metrics_schema
+from smol_dsl.rundir.metrics import (
+    BOUNDARY_EVENTS,
+    METRICS_SCHEMA,
+    REEVALUATION_FIELDS,
+    MetricsSchema,
+    development_names,
+    metrics_schema,
+)
 
 if TYPE_CHECKING:
     from smol_dsl.rundir.config import RunConfig
@@ -87,7 +94,8 @@ def schema_of_header(header: Sequence[str]) -> MetricsSchema:
         channel = _channel_of(name) if name not in METRICS_SCHEMA.names else None
         if channel is not None and channel.name == name and channel not in channels:
             channels.append(channel)
-    return metrics_schema(channels)
+    clocks = next((k for k in range(8, 0, -1) if set(development_names(k)) <= set(header)), 0)
+    return metrics_schema(channels, clocks)
 
 
 def _channel_of(name: str) -> Channel | None:
@@ -186,9 +194,9 @@ def _check_first(where: str, row: dict[str, Any], rerun: str) -> None:
 
 
 def _check_follows(where: str, row: dict[str, Any], previous: dict[str, Any], previous_line: int, rerun: str) -> None:
-    """A row follows the one before as the runner writes them: a reevaluate row in the same
-    generation, any other row in the next, phases and evaluations never going back."""
-    expected = previous["generation"] + (0 if row["event"] == "reevaluate" else 1)
+    """A row follows the one before as the runner writes them: a reevaluate or hold row in the
+    same generation, any other row in the next, phases and evaluations never going back."""
+    expected = previous["generation"] + (0 if row["event"] in BOUNDARY_EVENTS else 1)
     if row["event"] == "init" or row["generation"] != expected or row["phase"] < previous["phase"]:
         raise RunDirectoryError(
             f"{where}: generation {row['generation']} ({row['event']}, phase {row['phase']}) cannot follow "

@@ -39,7 +39,7 @@ from smol_dsl.rundir.layout import (
     RunDirectoryError,
     leave_out,
 )
-from smol_dsl.rundir.metrics import column_name, metrics_schema
+from smol_dsl.rundir.metrics import DEVELOPMENT, column_name, metrics_schema, scheduled_columns
 from smol_dsl.rundir.metrics_reader import final_body_evaluations, first_tail_phase, read_metrics
 from smol_dsl.tasks import task_spec
 from smol_dsl.tasks.anatomy import resolve
@@ -120,6 +120,24 @@ class RunRecord:
     def finished(self) -> bool:
         return self.final["generation"] >= self.config.generations
 
+    @property
+    def paced(self) -> bool:
+        """Whether the run's schedule waits for its archive (its rows log a development step)."""
+        return any(name.startswith(DEVELOPMENT) for name in self.rows[0])
+
+    @property
+    def body_columns(self) -> tuple[str, ...]:
+        """metrics.csv's columns of the run's scheduled channels (`alpha` for plain gear)."""
+        return scheduled_columns(self.channels)
+
+    def phase_column(self, column: str) -> np.ndarray:
+        """(phases,): one body column's value in every phase as the run trained (1 for a
+        channel it does not schedule)."""
+        names = [column_name(channel) for channel in self.channels]
+        if column not in names:
+            return np.ones(self.config.num_phases, dtype=np.float32)
+        return self.phase_bodies()[:, names.index(column)]
+
     def curve(self, metric: str) -> tuple[np.ndarray, np.ndarray]:
         """Training evaluations and the metric, one point per logged row."""
         evaluations = np.asarray([row["evaluations"] for row in self.rows], dtype=float)
@@ -132,14 +150,20 @@ class RunRecord:
 
     def phase_bodies(self) -> np.ndarray:
         """The body of every phase as the run trained in it, (phases, channels) in the order
-        of `channels`: the schedule's certified values under the run's seed (float32)."""
+        of `channels`: the schedule's certified values under the run's seed (float32); a
+        paced run's, those its clocks reached, as its metrics rows log them."""
         from smol_dsl.seeds import schedule_key
 
         schedule = _parsed(self.schedule_source)
         if isinstance(schedule, ScheduleError):
             raise RunDirectoryError(f"{self.directory / SCHEDULE_FILE}: {schedule}")
         values = schedule.checked_phase_values(self.config.num_phases, schedule_key(self.seed), schedule.channels)
-        return np.asarray(values, dtype=np.float32)
+        bodies = np.array(values, dtype=np.float32)
+        if schedule.is_paced:
+            names = [column_name(channel) for channel in schedule.channels]
+            for row in self.rows:
+                bodies[row["phase"]] = [row[name] for name in names]
+        return bodies
 
     def final_archive(self) -> FinalArchive:
         """The final archive, read (and checked) if it was not."""
@@ -162,7 +186,8 @@ def read_run(directory: Path) -> RunRecord:
     schedule = _schedule_of(directory, source, config)
     final_body = {channel.name: value for channel, value in schedule.final_body.items() if value != 1}
     _check_certificate(directory, certificate, schedule, final_body)
-    rows = read_metrics(directory / METRICS_FILE, config, metrics_schema(schedule.channels))
+    clocks = len(schedule.pacing.clocks) if schedule.pacing is not None else 0
+    rows = read_metrics(directory / METRICS_FILE, config, metrics_schema(schedule.channels, clocks))
     _check_tail_rows(directory, rows, schedule, config.num_phases)
     run = RunRecord(
         directory,

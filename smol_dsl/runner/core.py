@@ -38,14 +38,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from smol_dsl.qdax.reevaluation import ReevaluationCounts
 from smol_dsl.qdax.scoring import cvt_centroids, seed_keys
-from smol_dsl.rundir import REEVALUATION_FIELDS
+from smol_dsl.rundir import HOLD, REEVALUATION, REEVALUATION_FIELDS, SCORES
+from smol_dsl.runner import pacing
 from smol_dsl.runner.engine import stack_runs
 from smol_dsl.seeds import schedule_key
 
 if TYPE_CHECKING:
     from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 
+    from smol_dsl.language.pacing import PaceState
+    from smol_dsl.language.schedule import Schedule
     from smol_dsl.rundir.checkpoint import RunState
     from smol_dsl.rundir.config import RunConfig
     from smol_dsl.runner.engine import Engine
@@ -66,7 +70,15 @@ class Course:
     batch_size: int
     num_centroids: int
     num_init_cvt_samples: int
-    _placed: dict[int, jax.Array] = field(default_factory=dict, compare=False, repr=False)
+    schedules: tuple[Schedule, ...] = ()  # each padded run's
+    num_phases: int = 0
+    _placed: dict[Any, jax.Array] = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def paced(self) -> bool:
+        """Whether some run's schedule waits for its archive (`pace`): its body in a phase
+        then depends on its metrics, `TrainingState.indices`."""
+        return any(schedule.is_paced for schedule in self.schedules)
 
     @functools.cached_property
     def starts(self) -> Any:
@@ -76,13 +88,20 @@ class Course:
         starts = {seed: task.episode_start(seed) for seed in dict.fromkeys(self.seeds)}
         return self.engine.put(stack_runs([starts[seed] for seed in self.seeds]))
 
-    def bodies_in(self, phase: int) -> jax.Array:
+    def bodies_in(self, phase: int, indices: np.ndarray | None = None) -> jax.Array:
         """Every run's body in `phase`, (runs, channels) float32 on the devices; placed once a
-        phase, not every generation."""
-        if phase not in self._placed:
+        phase, not every generation. A paced course's runs read their bodies at `indices`
+        (runs, channels): the open-loop phase of each run's channel (`TrainingState.indices`)."""
+        key = phase if indices is None else (phase, indices.tobytes())
+        if key not in self._placed:
             self._placed.clear()
-            self._placed[phase] = self.engine.put(jnp.asarray(self.bodies[:, phase], dtype=jnp.float32))
-        return self._placed[phase]
+            if indices is None:
+                values = self.bodies[:, phase]
+            else:
+                runs, channels = np.arange(len(self.bodies))[:, None], np.arange(self.bodies.shape[2])[None, :]
+                values = self.bodies[runs, indices, channels]
+            self._placed[key] = self.engine.put(jnp.asarray(values, dtype=jnp.float32))
+        return self._placed[key]
 
 
 def plan_course(engine: Engine, runs: Sequence[PlannedRun], config: RunConfig) -> Course:
@@ -105,6 +124,8 @@ def plan_course(engine: Engine, runs: Sequence[PlannedRun], config: RunConfig) -
         config.batch_size,
         config.num_centroids,
         config.num_init_cvt_samples,
+        tuple(run.schedule for run in padded),
+        config.num_phases,
     )
 
 
@@ -118,6 +139,9 @@ def plan_course(engine: Engine, runs: Sequence[PlannedRun], config: RunConfig) -
         "non_finite",
         "phase_evaluations",
         "phase_non_finite",
+        "metrics",
+        "indices",
+        "paces",
     ],
     meta_fields=["generation", "phase"],
 )
@@ -126,7 +150,9 @@ class TrainingState:
     """Every run at one point of training: the archives and keys (on the devices, runs axis
     first, padded) and each real run's counters (host arrays): training evaluations so far
     (the initial population included), re-evaluations, results dropped as non-finite, and
-    the evaluations of the current phase and how many of them were non-finite."""
+    the evaluations of the current phase and how many of them were non-finite; each real
+    run's QDax metrics of its archive now, and in a paced course each run's clocks and the
+    open-loop phase each of its channels is at."""
 
     repertoires: MapElitesRepertoire
     keys: jax.Array
@@ -137,6 +163,13 @@ class TrainingState:
     non_finite: np.ndarray
     phase_evaluations: np.ndarray
     phase_non_finite: np.ndarray
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)  # each real run's archive's, now
+    indices: np.ndarray | None = None  # paced courses: (padded runs, channels), the open-loop phase of each body
+    paces: tuple[PaceState | None, ...] = ()  # paced courses: each real run's clocks (None: unpaced)
+
+    def development(self, run: int) -> PaceState | None:
+        """Run `run`'s pacing state (None: unpaced, or an unpaced course)."""
+        return self.paces[run] if self.paces else None
 
 
 @dataclass(frozen=True)
@@ -153,7 +186,7 @@ class Outcome:
     def of(self, run: int) -> tuple[str, dict[str, float], int, dict[str, int] | None]:
         """One run's event, metrics, non-finite count and re-evaluation counts."""
         counts = None
-        if self.reevaluation is not None:
+        if self.reevaluation is not None and self.events[run] != HOLD:
             counts = {name: int(values[run]) for name, values in self.reevaluation.items()}
         metrics = {name: float(values[run]) for name, values in self.metrics.items()}
         return self.events[run], metrics, int(self.non_finite[run]), counts
@@ -189,8 +222,21 @@ def start(
         non_finite=dropped,
         phase_evaluations=np.zeros(runs, dtype=np.int64),
         phase_non_finite=np.zeros(runs, dtype=np.int64),
+        metrics=_real(metrics, runs),
     )
+    if course.paced:
+        paces = tuple(pacing.initial(course.schedules[r], _row(state.metrics, r)) for r in range(runs))
+        indices = np.zeros((len(course.seeds), len(engine.channels)), dtype=np.int64)
+        state = dataclasses.replace(state, paces=paces, indices=indices)
     return state, Outcome(("init",) * runs, metrics, dropped)
+
+
+def _real(metrics: Mapping[str, np.ndarray], runs: int) -> dict[str, np.ndarray]:
+    return {name: np.asarray(values)[:runs] for name, values in metrics.items()}
+
+
+def _row(metrics: Mapping[str, np.ndarray], run: int) -> dict[str, float]:
+    return {name: float(values[run]) for name, values in metrics.items()}
 
 
 def restore(
@@ -206,7 +252,8 @@ def restore(
 
     repertoires, keys = jax.tree.map(placed, (repertoires, keys))
     count = len(runs)
-    return TrainingState(
+    last_rows = [run.rows[-1] for run in runs]
+    state = TrainingState(
         repertoires,
         keys,
         generation=runs[0].generation,
@@ -216,7 +263,22 @@ def restore(
         non_finite=np.asarray([run.non_finite for run in runs], dtype=np.int64),
         phase_evaluations=np.zeros(count, dtype=np.int64),
         phase_non_finite=np.zeros(count, dtype=np.int64),
+        metrics={name: np.asarray([row[name] for row in last_rows], np.float32) for name in SCORES},
     )
+    if course.paced:  # each run's clocks, decided again from its rows as training decided them
+        paces = tuple(pacing.replayed(course.schedules[r], run.rows, course.num_phases) for r, run in enumerate(runs))
+        state = dataclasses.replace(state, paces=paces, indices=_indices(course, paces, state.phase))
+    return state
+
+
+def _indices(course: Course, paces: Sequence[PaceState | None], phase: int) -> np.ndarray:
+    """Every padded run's (channels,) open-loop phases in `phase` (padding: the last run's)."""
+    channels = course.engine.channels
+    rows = [
+        pacing.indices(course.schedules[r], pace, phase, course.num_phases, channels) for r, pace in enumerate(paces)
+    ]
+    rows += [rows[-1]] * (len(course.seeds) - len(rows))
+    return np.stack(rows)
 
 
 def train_generation(engine: Engine, course: Course, state: TrainingState) -> tuple[TrainingState, Outcome]:
@@ -225,13 +287,14 @@ def train_generation(engine: Engine, course: Course, state: TrainingState) -> tu
     runs = course.num_runs
     keys, subkeys = engine.split(state.keys)
     repertoires, metrics, dropped, reseeded = engine.step(
-        state.repertoires, course.bodies_in(state.phase), course.starts, subkeys
+        state.repertoires, course.bodies_in(state.phase, state.indices), course.starts, subkeys
     )
     dropped = np.asarray(dropped[:runs], dtype=np.int64)
     state = dataclasses.replace(
         state,
         repertoires=repertoires,
         keys=keys,
+        metrics=_real(metrics, runs),
         generation=state.generation + 1,
         evaluations=state.evaluations + course.batch_size,
         non_finite=state.non_finite + dropped,
@@ -245,12 +308,44 @@ def train_generation(engine: Engine, course: Course, state: TrainingState) -> tu
 def cross_boundary(engine: Engine, course: Course, state: TrainingState, phase: int) -> tuple[TrainingState, Outcome]:
     """Every archive re-scored in its run's body of `phase`, thinned by its extinction
     probability, into a fresh archive (`Engine.reevaluate`); the new phase's counts start
-    at 0."""
+    at 0. In a paced course each paced run first decides from its metrics whether its body
+    moves on (`smol_dsl.runner.pacing`); a run whose body stays (`hold`) keeps its archive
+    as it is, not re-scored. Every run's key is split at every boundary, so that a run's
+    random streams do not depend on when the runs beside it move on."""
     runs = course.num_runs
     keys, subkeys = engine.split(state.keys)
-    repertoires, counts = engine.reevaluate(
-        state.repertoires, course.bodies_in(phase), course.starts, course.extinctions, subkeys
-    )
+    paces, indices, moved = state.paces, state.indices, None
+    if course.paced:
+        decided = tuple(
+            pace
+            if pace is None
+            else pacing.decide(course.schedules[r], pace, _row(state.metrics, r), state.phase, course.num_phases)
+            for r, pace in enumerate(state.paces)
+        )
+        indices = _indices(course, decided, phase)
+        moved = np.any(indices != state.indices, axis=1)
+        paces = decided
+    if moved is None or moved.all():
+        repertoires, counts = engine.reevaluate(
+            state.repertoires, course.bodies_in(phase, indices), course.starts, course.extinctions, subkeys
+        )
+        metrics = engine.metrics(repertoires)
+    elif moved.any():
+        repertoires, counts = engine.reevaluate(
+            state.repertoires, course.bodies_in(phase, indices), course.starts, course.extinctions, subkeys, only=moved
+        )
+        after = engine.metrics(repertoires)
+        metrics = {name: np.where(moved[:runs], after[name][:runs], state.metrics[name]) for name in after}
+    else:
+        repertoires, counts, metrics = state.repertoires, ReevaluationCounts.none(len(course.seeds)), state.metrics
+    real = _real(metrics, runs)
+    if moved is not None:
+        paces = tuple(
+            pace
+            if pace is None or not moved[r]
+            else pacing.settle(course.schedules[r], state.paces[r], pace, _row(real, r))
+            for r, pace in enumerate(paces)
+        )
     non_finite = np.asarray(counts.non_finite[:runs], dtype=np.int64)
     state = dataclasses.replace(
         state,
@@ -261,9 +356,13 @@ def cross_boundary(engine: Engine, course: Course, state: TrainingState, phase: 
         non_finite=state.non_finite + non_finite,
         phase_evaluations=np.zeros(runs, dtype=np.int64),
         phase_non_finite=np.zeros(runs, dtype=np.int64),
+        metrics=real,
+        indices=indices,
+        paces=paces,
     )
     reevaluation = {name: np.asarray(getattr(counts, name)) for name in REEVALUATION_FIELDS}
-    return state, Outcome(("reevaluate",) * runs, engine.metrics(repertoires), non_finite, reevaluation)
+    events = tuple(REEVALUATION if moved is None or moved[r] else HOLD for r in range(runs))
+    return state, Outcome(events, metrics, non_finite, reevaluation)
 
 
 def failed_runs(state: TrainingState) -> list[int]:

@@ -22,6 +22,7 @@ streams as `smol-dsl run` of that seed."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from functools import lru_cache, partial
 from typing import TYPE_CHECKING, Any
@@ -105,6 +106,7 @@ class Engine:
         self._empty = self._over_runs(partial(empty_archive, template))
         self._split = jax.jit(split_in_two, out_shardings=self.sharding)
         self._replays: Any = None  # compiled on first use (`replay`)
+        self._choose: Any = None  # compiled on first use (`reevaluate` of some runs only)
 
     def padded_runs(self, runs: int) -> int:
         """The number of runs rounded up to a multiple of the runs axis."""
@@ -233,12 +235,17 @@ class Engine:
         starts: Any,
         extinctions: jax.Array,
         keys: jax.Array,
+        only: np.ndarray | None = None,
     ) -> tuple[MapElitesRepertoire, ReevaluationCounts]:
         """Every run's elites re-scored in its new body, thinned by its extinction, in fresh
         archives. Chunks run over the filled cells only (up to the fullest archive).
-        Returns the archives, and per run what became of its elites (`ReevaluationCounts`)."""
+        Returns the archives, and per run what became of its elites (`ReevaluationCounts`).
+        With `only` (runs,) bool, the other runs' archives are returned as they are, none
+        of their elites re-scored (their counts are 0)."""
         filled_mask = np.asarray(repertoires.fitnesses) > -np.inf
         filled = [np.flatnonzero(row) for row in filled_mask.reshape(len(filled_mask), -1)]
+        if only is not None:
+            filled = [cells if chosen else cells[:0] for cells, chosen in zip(filled, only, strict=True)]
         fresh = self.empty_archives(repertoires.centroids)
         non_finite = np.zeros(len(filled), dtype=np.int64)
         died = np.zeros(len(filled), dtype=np.int64)
@@ -252,7 +259,13 @@ class Engine:
             died += np.asarray(dead)
         kept, after = jax.device_get(self._kept(repertoires, fresh))
         before = np.asarray([len(cells) for cells in filled], dtype=np.int64)
-        return fresh, ReevaluationCounts.of(before, non_finite, died, np.asarray(kept), np.asarray(after))
+        counts = ReevaluationCounts.of(before, non_finite, died, np.asarray(kept), np.asarray(after))
+        if only is not None:
+            if self._choose is None:
+                self._choose = self._over_runs(choose, donate=(1,))
+            fresh = self._choose(self.put(jnp.asarray(only)), fresh, repertoires)
+            counts = ReevaluationCounts(*(np.where(only, value, 0) for value in dataclasses.astuple(counts)))
+        return fresh, counts
 
     def score(self, genotypes: Any, bodies: jax.Array, starts: Any) -> tuple[np.ndarray, np.ndarray]:
         """Every run's batch (R, batch_size, ...) scored in its body by the training's own
@@ -381,6 +394,11 @@ def _zeros(shape: tuple[int, ...], dtype: Any) -> jax.Array:
     if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key):
         return jax.random.wrap_key_data(jnp.zeros(shape + jax.random.key_data(jax.random.key(0)).shape, jnp.uint32))
     return jnp.zeros(shape, dtype)
+
+
+def choose(take: jax.Array, new: MapElitesRepertoire, old: MapElitesRepertoire) -> MapElitesRepertoire:
+    """One run's archive: `new` where `take`, else `old` as it is."""
+    return jax.tree.map(lambda a, b: jnp.where(take, a, b), new, old)
 
 
 def split_in_two(keys: jax.Array) -> tuple[jax.Array, jax.Array]:

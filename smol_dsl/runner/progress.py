@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from smol_dsl.errors import counted
 from smol_dsl.rundir import ALPHA, METRIC_FIELDS
-from smol_dsl.rundir.metrics import REEVALUATION
+from smol_dsl.rundir.metrics import BOUNDARY_EVENTS, DEVELOPMENT, REEVALUATION
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
@@ -41,8 +41,9 @@ class ProgressBar:
             self._first_evaluations = evaluations
             self._started = time.perf_counter()
         row = rows[0]
-        if row["event"] == REEVALUATION:
-            self._reevaluation = reevaluation_summary(rows)
+        if row["event"] in BOUNDARY_EVENTS:
+            moved = any(r["event"] == REEVALUATION for r in rows)
+            self._reevaluation = reevaluation_summary(rows) if moved else "body held"
             warning = reevaluation_warning(rows, self._config.num_phases)
             if warning is not None:
                 self._bar.write(warning, file=sys.stderr)
@@ -53,6 +54,7 @@ class ProgressBar:
         phase = f"phase {row['phase']} of 0-{self._config.num_phases - 1}"
         if len(rows) == 1:
             body = " ".join(f"{name} {row[name]:.3f}" for name in (ALPHA, *channel_columns(row)))
+            body += "".join(f" {name} {row[name]}" for name in row if name.startswith(DEVELOPMENT))
             about = f"{phase} {body} cov {row['coverage']:.1f}% max {row['max_fitness']:.1f}"
         else:
             coverage = sorted(r["coverage"] for r in rows)[len(rows) // 2]
@@ -75,7 +77,7 @@ class ReevaluationWarnings:
 
     def update(self, rows: list[dict[str, Any]], total: int) -> None:
         """Warn of a re-evaluation that left under half the cells filled."""
-        warning = reevaluation_warning(rows, self._phases) if rows[0]["event"] == REEVALUATION else None
+        warning = reevaluation_warning(rows, self._phases) if rows[0]["event"] in BOUNDARY_EVENTS else None
         if warning is not None:
             print(warning, file=sys.stderr, flush=True)
 
@@ -132,7 +134,7 @@ def reevaluation_warning(rows: list[dict[str, Any]], num_phases: int) -> str | N
 def channel_columns(row: dict[str, Any]) -> list[str]:
     """A metrics row's columns of scheduled channels other than plain gear (`alpha`, which
     every row has)."""
-    return [name for name in row if name not in METRIC_FIELDS]
+    return [name for name in row if name not in METRIC_FIELDS and not name.startswith(DEVELOPMENT)]
 
 
 def summary_line(result: RunResult, schedule: Schedule) -> str:

@@ -33,6 +33,7 @@ from smol_dsl.qdax.phases import phase_of_generation
 from smol_dsl.rundir import CHECKPOINT_FILE, MetricsLog
 from smol_dsl.rundir.checkpoint import RunState, checkpoint_contents
 from smol_dsl.rundir.snapshots import END, START, Snapshot, read_snapshots, snapshots_until, write_snapshots
+from smol_dsl.runner import pacing
 from smol_dsl.runner.checkpoint import (
     CheckpointWriter,
     archive_arrays,
@@ -131,7 +132,10 @@ class HostLoop:
         self.checkpoint, self.progress = checkpoint, progress
         self.owner = owner(runs, config)
         channels = course.engine.channels
-        self.schemas = [rundir.metrics_schema(run.schedule.channels) for run in runs]
+        self.schemas = [
+            rundir.metrics_schema(run.schedule.channels, len(run.schedule.pacing.clocks) if run.schedule.pacing else 0)
+            for run in runs
+        ]
         # each run's own bodies, the columns of its schedule's channels (its metrics.csv columns and result)
         self.own_bodies = [
             course.bodies[r][:, [channels.index(c) for c in run.schedule.channels]] for r, run in enumerate(runs)
@@ -181,7 +185,8 @@ class HostLoop:
             self.schemas[r],
             generation=state.generation,
             phase=state.phase,
-            **self.columns(r, state.phase),
+            **self.columns(r, state),
+            **pacing.development_columns(self.runs[r].schedule, state.development(r)),
             event=event,
             evaluations=int(state.evaluations[r]),
             reevaluations=int(state.reevaluations[r]),
@@ -218,9 +223,28 @@ class HostLoop:
         if self.progress is not None:
             self.progress([rows[-1] for rows in self.rows], self.config.generations)
 
-    def columns(self, run: int, phase: int) -> dict[str, float]:
-        """A run's metrics.csv body columns in a phase (its schedule's channels)."""
-        return rundir.body_columns(self.runs[run].schedule.channels, self.own_bodies[run][phase])
+    def columns(self, run: int, state: TrainingState) -> dict[str, float]:
+        """A run's metrics.csv body columns in the state's phase (its schedule's channels):
+        in a paced course, the body its clocks have reached."""
+        return rundir.body_columns(self.runs[run].schedule.channels, self.body(run, state))
+
+    def body(self, run: int, state: TrainingState) -> np.ndarray:
+        """A run's body in the state's phase, (its schedule's channels,)."""
+        if state.indices is None:
+            return self.own_bodies[run][state.phase]
+        channels = self.course.engine.channels
+        own = [channels.index(c) for c in self.runs[run].schedule.channels]
+        return self.course.bodies[run, state.indices[run][own], own]
+
+    def trained_bodies(self, run: int) -> np.ndarray:
+        """(phases, channels): the body a run trained in at every phase, as its rows log it
+        (a paced run's realised bodies; phases not reached yet: the open-loop ones)."""
+        bodies = np.array(self.own_bodies[run], copy=True)
+        if self.course.paced:
+            names = [rundir.column_name(channel) for channel in self.runs[run].schedule.channels]
+            for row in self.rows[run]:
+                bodies[row["phase"]] = [row[name] for name in names]
+        return bodies
 
     def run_states(self, state: TrainingState, finished: bool = False) -> list[RunState]:
         """What a checkpoint records of each run's progress (`RunState`)."""
@@ -242,7 +266,7 @@ class HostLoop:
         NaN or infinite (`core.failed_runs`): the physics cannot simulate the run's body, and
         its archive would learn nothing (the checkpoint of the phase's start is kept)."""
         for r in failed_runs(state):
-            body = ", ".join(f"{name} {value:.4g}" for name, value in self.columns(r, state.phase).items())
+            body = ", ".join(f"{name} {value:.4g}" for name, value in self.columns(r, state).items())
             raise RunError(
                 f"{self.runs[r].name}: all {int(state.phase_evaluations[r])} evaluations of phase {state.phase} scored "
                 f"NaN or infinity, under the body {body}: the physics of {self.config.task} cannot simulate it, and "
@@ -313,7 +337,7 @@ class HostLoop:
                     repertoire,
                     self.rows[r],
                     run.config,
-                    self.own_bodies[r],
+                    self.trained_bodies(r),
                     run.schedule.channels,
                     run.directory,
                     seconds,

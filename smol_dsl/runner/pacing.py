@@ -1,0 +1,118 @@
+"""A paced run's clocks on the host: the metrics a decision reads, each run's decision at a
+phase boundary, and the state a checkpoint's rows replay to.
+
+The decision itself is the schedule's (`smol_dsl.language.pacing.Pacing.decide`, pure and
+jittable), jitted once per pacing and phase count here. It reads the metrics of the rows
+the runner logs (metrics.csv's coverage in %, as a share here), each converted to float32
+as the archive's metrics were, so that a resumed run, replaying its checkpoint's rows,
+decides exactly as it did (bit-exact resume needs no state of its own in the checkpoint).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from functools import lru_cache
+from itertools import pairwise
+from typing import TYPE_CHECKING, Any
+
+import jax
+import numpy as np
+
+from smol_dsl.language.pacing import METRICS, PaceState, Pacing
+from smol_dsl.rundir import BOUNDARY_EVENTS, HOLD, REEVALUATION_FIELDS
+
+if TYPE_CHECKING:
+    from smol_dsl.language.channels import Channel
+    from smol_dsl.language.schedule import Schedule
+
+
+def pace_metrics(row: Mapping[str, Any]) -> dict[str, np.float32]:
+    """What a decision reads of a metrics row (or of one run's QDax metrics): coverage as a
+    share (0 to 1), max fitness and QD score, each float32 as the archive computed them."""
+    return {
+        "coverage": np.float32(row["coverage"]) / np.float32(100),
+        "max_fitness": np.float32(row["max_fitness"]),
+        "qd_score": np.float32(row["qd_score"]),
+    }
+
+
+@lru_cache(maxsize=32)
+def _decide(pacing: Pacing, tail_phase: int) -> Any:
+    return jax.jit(lambda state, metrics, phase: pacing.decide(state, metrics, phase, tail_phase))
+
+
+@lru_cache(maxsize=32)
+def _settle(pacing: Pacing) -> Any:
+    return jax.jit(pacing.settle)
+
+
+def initial(schedule: Schedule, row: Mapping[str, Any]) -> PaceState | None:
+    """A run's pacing after its initial population (`row`: its init row), None if unpaced."""
+    if schedule.pacing is None:
+        return None
+    return jax.device_get(schedule.pacing.initial(pace_metrics(row)))
+
+
+def decide(schedule: Schedule, state: PaceState, row: Mapping[str, Any], phase: int, num_phases: int) -> PaceState:
+    """A paced run's state for the phase after `phase`, from `row`: the metrics at its end."""
+    assert schedule.pacing is not None
+    decided = _decide(schedule.pacing, schedule.tail_phase(num_phases))(state, pace_metrics(row), phase)
+    return jax.device_get(decided)
+
+
+def settle(schedule: Schedule, previous: PaceState, decided: PaceState, row: Mapping[str, Any]) -> PaceState:
+    """`decided` with the metrics after the boundary (`row`) remembered by the clocks that moved."""
+    assert schedule.pacing is not None
+    return jax.device_get(_settle(schedule.pacing)(previous, decided, pace_metrics(row)))
+
+
+def indices(
+    schedule: Schedule, state: PaceState | None, phase: int, num_phases: int, channels: Sequence[Channel]
+) -> np.ndarray:
+    """Per channel of `channels`, the open-loop phase whose value a run has in `phase`: the
+    phase itself for an unpaced run (`state` None)."""
+    if state is None:
+        return np.full(len(channels), phase, dtype=np.int64)
+    return np.asarray(schedule.phase_indices(state.development, phase, num_phases, channels), dtype=np.int64)
+
+
+def development_columns(schedule: Schedule, state: PaceState | None) -> dict[str, int]:
+    """A paced run's development columns of a metrics row (none for an unpaced one)."""
+    from smol_dsl.rundir import development_names
+
+    if state is None:
+        return {}
+    names = development_names(len(schedule.pacing.clocks) if schedule.pacing is not None else 0)
+    return {name: int(step) for name, step in zip(names, np.asarray(state.development), strict=True)}
+
+
+def replayed(schedule: Schedule, rows: Sequence[Mapping[str, Any]], num_phases: int) -> PaceState | None:
+    """A paced run's state after `rows` (its metrics rows from the start, as a checkpoint
+    holds them): every boundary decided again from the row before it, as training did."""
+    if schedule.pacing is None:
+        return None
+    state = initial(schedule, rows[0])
+    for previous, row in pairwise(rows):
+        if row["event"] not in BOUNDARY_EVENTS:
+            continue
+        decided = decide(schedule, state, previous, previous["phase"], num_phases)
+        state = settle(schedule, state, decided, row)
+    return state
+
+
+def is_hold(counts: Mapping[str, Any] | None) -> bool:
+    """Whether a boundary's counts are a hold's (no re-evaluation)."""
+    return counts is None or all(counts.get(name) is None for name in REEVALUATION_FIELDS)
+
+
+__all__ = [
+    "HOLD",
+    "METRICS",
+    "decide",
+    "development_columns",
+    "indices",
+    "initial",
+    "pace_metrics",
+    "replayed",
+    "settle",
+]
