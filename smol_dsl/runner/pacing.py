@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING, Any
 import jax
 import numpy as np
 
-from smol_dsl.language.pacing import METRICS, PaceState, Pacing
-from smol_dsl.rundir import BOUNDARY_EVENTS, HOLD, REEVALUATION_FIELDS
+from smol_dsl.language.pacing import PaceState, Pacing
+from smol_dsl.rundir import BOUNDARY_EVENTS
 
 if TYPE_CHECKING:
     from smol_dsl.language.channels import Channel
@@ -98,11 +98,6 @@ def replayed(schedule: Schedule, rows: Sequence[Mapping[str, Any]], num_phases: 
         decided = decide(schedule, state, previous, previous["phase"], num_phases)
         state = settle(schedule, state, decided, row)
     return state
-
-
-def is_hold(counts: Mapping[str, Any] | None) -> bool:
-    """Whether a boundary's counts are a hold's (no re-evaluation)."""
-    return counts is None or all(counts.get(name) is None for name in REEVALUATION_FIELDS)
 
 
 __all__ = [
