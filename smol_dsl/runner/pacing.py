@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING, Any
 import jax
 import numpy as np
 
-from smol_dsl.language.pacing import PaceState, Pacing
 from smol_dsl.rundir import BOUNDARY_EVENTS
 
 if TYPE_CHECKING:
     from smol_dsl.language.channels import Channel
+    from smol_dsl.language.pacing import PaceState, Pacing
     from smol_dsl.language.schedule import Schedule
 
 
