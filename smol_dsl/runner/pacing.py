@@ -101,8 +101,6 @@ def replayed(schedule: Schedule, rows: Sequence[Mapping[str, Any]], num_phases: 
 
 
 __all__ = [
-    "HOLD",
-    "METRICS",
     "decide",
     "development_columns",
     "indices",
