@@ -1,19 +1,24 @@
 """QDax's own MAP-Elites (iso+line variation) under a smol-dsl schedule.
 
 Run: python examples/qdax_map_elites.py [schedule] (walker2d under smol.sched by default; a
-couple of minutes on 2 CPU cores)
+couple of minutes on 2 CPU cores; `smol-paced` for a schedule that waits for the archive)
 
 The loop is a QDax user's: `MAPElites(scoring_function, emitter, metrics).init`, then
 `update` generation after generation. Under a schedule, four things change:
 
 1. the scoring function is smol-dsl's, with the body as an argument
-   (`smol.scoring_function`), and the bodies come from the schedule (`smol.phase_bodies`);
+   (`smol.scoring_function`), and the body of each phase comes from the schedule
+   (`smol.phase_body`: for a schedule without `pace`, a row of `smol.phase_bodies`);
 2. the body is bound inside the jitted step, so one compilation serves every phase;
-3. at each phase boundary the repertoire is re-evaluated in the new body
-   (`smol.reevaluate`) and the emitter's body-dependent state updated (`smol.new_phase`);
+3. at each phase boundary the schedule decides from the repertoire's metrics whether the
+   body moves on (`smol.pace`: always, without `pace`); where it does, the repertoire is
+   re-evaluated in the new body (`smol.reevaluate`), the emitter's body-dependent state
+   updated (`smol.new_phase`) and the metrics after remembered (`smol.settle`); where it
+   does not, the repertoire is kept as it is;
 4. the key, centroids and initial population are those of `smol-dsl run --seed`
    (`smol.run_start`), so that this loop follows its random streams: with the same settings
-   its final repertoire is `smol-dsl run`'s (tests/test_qdax_examples.py holds them equal).
+   its final repertoire is `smol-dsl run`'s (tests/test_qdax_examples.py holds them equal,
+   for SMOL and SMOL-paced).
 """
 
 from __future__ import annotations
@@ -52,9 +57,9 @@ def main(
     task = make_task(task_name, episode_length=episode_length, hidden_layer_sizes=hidden_layer_sizes)
     schedule = smol_dsl.load(schedule_name)
 
-    # 1. smol-dsl's scoring, the schedule's bodies, and `smol-dsl run --seed`'s first draws
+    # 1. smol-dsl's scoring, and `smol-dsl run --seed`'s first draws
     score = smol.scoring_function(task, schedule, seed=seed)
-    bodies = smol.phase_bodies(schedule, num_phases, smol.schedule_key(seed))
+    schedule_key = smol.schedule_key(seed)
     start = smol.run_start(
         task, seed, batch_size=batch_size, num_centroids=num_centroids, num_init_cvt_samples=num_init_cvt_samples
     )
@@ -80,21 +85,29 @@ def main(
         lambda repertoire, state, key, body: map_elites(body).update(repertoire, state, key), compiler_options=fast
     )
 
-    repertoire, emitter_state, metrics = init(start.genotypes, start.centroids, start.init_key, bodies[0])
+    body = smol.phase_bodies(schedule, num_phases, schedule_key)[0]  # phase 0: every clock at 0
+    repertoire, emitter_state, metrics = init(start.genotypes, start.centroids, start.init_key, body)
+    pacing = smol.pacing_start(schedule, metrics)
     history = [{"generation": 0, "phase": 0, **{k: float(v) for k, v in metrics.items()}}]
+    bodies = [body]
     key, phase = start.key, 0
     generations = evaluations // batch_size - 1
     for generation in range(1, generations + 1):
-        # 3. a new phase: the repertoire re-evaluated in the new body
+        # 3. a new phase: the schedule decides whether the body moves on, and where it does
+        # the repertoire is re-evaluated in the new body
         if smol.phase_of_generation(generation, generations, num_phases) != phase:
+            decided = smol.pace(schedule, pacing, metrics, phase, num_phases)
             phase = smol.phase_of_generation(generation, generations, num_phases)
             key, subkey = jax.random.split(key)
-            repertoire = smol.reevaluate(
-                repertoire, score, bodies[phase], subkey, schedule.extinction, batch_size=batch_size
-            )
-            emitter_state = smol.new_phase(emitter_state, repertoire)
+            if smol.body_moves(schedule, pacing, decided, phase, num_phases):
+                body = smol.phase_body(schedule, decided, phase, num_phases, schedule_key)
+                repertoire = smol.reevaluate(repertoire, score, body, subkey, schedule.extinction, batch_size=batch_size)
+                emitter_state = smol.new_phase(emitter_state, repertoire)
+                decided = smol.settle(schedule, pacing, decided, metrics_function(repertoire))
+            pacing = decided
+            bodies.append(body)
         key, subkey = jax.random.split(key)
-        repertoire, emitter_state, metrics = update(repertoire, emitter_state, subkey, bodies[phase])
+        repertoire, emitter_state, metrics = update(repertoire, emitter_state, subkey, body)
         history.append({"generation": generation, "phase": phase, **{k: float(v) for k, v in metrics.items()}})
     return repertoire, np.asarray(bodies), history
 

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from smol_dsl.cli.common import EXIT_OK, EXIT_USAGE, UsageError, load_all, positive_int, print_errors, whole_number
+from smol_dsl.rundir.layout import is_run_directory
 from smol_dsl.seeds import check_seed, schedule_key
 
 
@@ -16,10 +17,17 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="plot alpha over training (the paper's Figure 2)",
         description="Plot alpha over training as per-phase steps with the smooth curve, several schedules "
         "overlaid, and a dashed line where alpha becomes 1 for good; one panel per channel when the "
-        "schedules scale other parameters too. With no SCHEDULE, plots the paper's "
+        "schedules scale other parameters too; a paced schedule with its envelope (the values a run can have "
+        "in each phase whatever its metrics; its slowest run dotted). With no SCHEDULE, plots the paper's "
         "Figure 2 (vanilla, smol, smol-reverse, human).",
     )
-    plot.add_argument("schedules", nargs="*", metavar="SCHEDULE", help="a .sched path or a bundled name")
+    plot.add_argument(
+        "schedules",
+        nargs="*",
+        metavar="SCHEDULE",
+        help="a .sched path or a bundled name, or a run directory: the bodies that run trained in (a paced run's, "
+        "those its archive let it reach), drawn over the given schedules at its number of phases",
+    )
     plot.add_argument(
         "-o",
         "--out",
@@ -48,19 +56,40 @@ def plot_schedules(args: argparse.Namespace) -> int:
 
     names = args.schedules or list(PAPER_FIGURE)
     out = _figure_path(args.out, names)
-    schedules, errors = load_all(names)
+    runs = [name for name in names if is_run_directory(Path(name))]
+    schedules, errors = load_all([name for name in names if name not in runs])
     if errors:
         print_errors(errors)
         return EXIT_USAGE
-    _note_phase_counts(schedules, args.phases)
-    figure = schedule_figure(schedules, num_phases=args.phases, key=schedule_key(args.seed))  # `run --seed`'s draws
+    trajectories, phases = _trajectories(runs, args.phases)
+    _note_phase_counts(schedules, phases)
+    # `run --seed`'s draws
+    figure = schedule_figure(schedules, num_phases=phases, key=schedule_key(args.seed), trajectories=trajectories)
     try:
         save_figure(figure, out)  # atomically: a failure leaves no half-written file
     except OSError as error:
         raise UsageError(f"cannot write {out}: {error.strerror or error}") from None
     shown = ", ".join(s.name for s in schedules) if len(schedules) <= 8 else f"{len(schedules)} schedules"
-    print(f"wrote {out} ({shown}; {args.phases} phases)")
+    shown = ", ".join([shown] * bool(schedules) + [run.label for run in trajectories])
+    print(f"wrote {out} ({shown}; {phases} phases)")
     return EXIT_OK
+
+
+def _trajectories(runs: list[str], phases: int) -> tuple[list, int]:
+    """The bodies each run directory's run trained in (a paced run's, those it reached), and
+    the phases to draw: the runs' (which must agree), else `phases`."""
+    from smol_dsl.results.schedule_figures import Trajectory
+    from smol_dsl.rundir import read_run
+
+    records = [read_run(Path(run)) for run in runs]
+    counts = sorted({record.config.num_phases for record in records})
+    if len(counts) > 1:
+        raise UsageError(f"the runs trained {' and '.join(map(str, counts))} phases; plot runs of one phase count")
+    trajectories = [
+        Trajectory(f"{record.schedule} ({Path(run).name})", record.channels, record.phase_bodies())
+        for run, record in zip(runs, records, strict=True)
+    ]
+    return trajectories, counts[0] if counts else phases
 
 
 def _figure_path(given: str | None, names: list[str]) -> Path:

@@ -18,6 +18,10 @@
 - `run_start(task, seed, ...)`: the key, centroids and initial population of `smol-dsl run
   --seed`, so that a QDax loop follows its random streams; `phase_of_generation` splits
   the generations into phases as it does;
+- `pacing_start(schedule, metrics)`, `pace(schedule, state, metrics, phase, num_phases)`,
+  `settle`, `phase_body` and `body_moves`: a paced schedule's decision at each phase end, a
+  pure function of its `PaceState` and QDax's metrics, and the body it reaches
+  (`smol_dsl.qdax.pacing`; examples/qdax_map_elites.py drives one);
 - `env_sizes(task)`: the `env` argument of QDax's gradient emitters;
 - `compiler_options(task)`: the XLA options to jit your step with, for rollouts as fast as
   smol-dsl's own on CPUs (the same results, bit for bit).
@@ -43,6 +47,7 @@ from __future__ import annotations
 
 from smol_dsl.qdax import compat
 from smol_dsl.qdax.emitters import new_phase
+from smol_dsl.qdax.pacing import body_moves, pace, pace_metrics, pacing_start, phase_body, settle
 from smol_dsl.qdax.phases import phase_bodies, phase_of_generation
 from smol_dsl.qdax.reevaluation import reevaluate
 from smol_dsl.qdax.scoring import EnvSizes, RunStart, compiler_options, env_sizes, run_start, scoring_function
@@ -53,13 +58,19 @@ compat.install()  # QDax 0.5's PGA-ME and DCRL-ME emitters import a Brax v1 modu
 __all__ = [
     "EnvSizes",
     "RunStart",
+    "body_moves",
     "compiler_options",
     "env_sizes",
     "new_phase",
+    "pace",
+    "pace_metrics",
+    "pacing_start",
     "phase_bodies",
+    "phase_body",
     "phase_of_generation",
     "reevaluate",
     "run_start",
     "schedule_key",
     "scoring_function",
+    "settle",
 ]

@@ -135,7 +135,8 @@ class Explorer:
 
     def run_data(self, number: str | int) -> dict[str, Any]:
         """What the page draws of a run: its cells' centroids, the descriptor box, every
-        snapshot's fitnesses (None where empty), the final archive and the metrics curves."""
+        snapshot's fitnesses (None where empty), the final archive and the metrics curves
+        (coverage, max fitness, and α, the body each row trained in)."""
         run = self.run(number)
         record = run.record
         final = record.final_archive()
@@ -154,6 +155,7 @@ class Explorer:
             "generations_per_row": [row["generation"] for row in record.rows],
             "coverage": [row["coverage"] for row in record.rows],
             "max_fitness": [_finite(row["max_fitness"]) for row in record.rows],
+            "alpha": [row["alpha"] for row in record.rows],  # the body trained in: a paced run's, realised
             "phases": record.config.num_phases,
         }  # fmt: skip
 

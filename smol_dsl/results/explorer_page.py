@@ -1,6 +1,6 @@
 """The explorer's page: one HTML file with its script and style inline (no request leaves
 the server), drawing each run's archive on a canvas with a slider over its phases, the
-coverage and max-fitness curves with the moment marked, another run's archive beside it at the
+coverage, max-fitness and α curves (the body each generation trained in) with the moment marked, another run's archive beside it at the
 same moment on one colour scale (schedules side by side), and, for a clicked cell, the final
 archive's elite rendered in the bodies chosen. The view (run, moment, cell, the run beside) is
 kept in the URL's fragment, so a view can be shared; arrow keys step through the moments,
@@ -37,7 +37,7 @@ on one colour scale. Keys: left and right step, space plays.</p>
   <canvas id="map" width="520" height="520" aria-label="archive map"></canvas>
   <div id="controls"><input type="range" id="slider" min="0" max="0" value="0" aria-label="moment">
    <button type="button" id="play">play</button><br><span id="moment"></span><br><small id="view"></small></div>
-  <canvas id="curve" width="520" height="170" aria-label="coverage and max fitness"></canvas>
+  <canvas id="curve" width="600" height="170" aria-label="coverage, max fitness and alpha"></canvas>
  </div>
  <div id="right" style="width: 540px" hidden>
   <canvas id="map-beside" width="520" height="520" aria-label="the other run's archive map"></canvas>
@@ -122,7 +122,11 @@ function drawCurve() {
     });
     g.stroke(); g.fillStyle = "#ff7f0e"; g.fillText(`max fitness (${low.toFixed(1)} to ${high.toFixed(1)})`, pad + 200, 14);
   }
-  g.fillStyle = "#333"; g.fillText("over generations", pad + 400, 14);
+  const alphas = d.alpha, aLow = Math.min(...alphas), aHigh = Math.max(...alphas), aSpan = aHigh - aLow || 1;
+  g.strokeStyle = "#2ca02c"; g.beginPath();  // the body trained in (a paced run's, as its archive let it move on)
+  alphas.forEach((v, i) => { const x = pad + w * gens[i] / last, y = pad + h * (1 - (v - aLow) / aSpan); i ? g.lineTo(x, y) : g.moveTo(x, y); });
+  g.stroke(); g.fillStyle = "#2ca02c"; g.fillText(`α (${aLow.toFixed(2)} to ${aHigh.toFixed(2)})`, pad + 390, 14);
+  g.fillStyle = "#333"; g.fillText("over generations", pad + 470, 14);
   const s = d.snapshots[state.snap];
   if (s) { const x = pad + w * s.generation / last; g.strokeStyle = "#e00"; g.beginPath(); g.moveTo(x, pad); g.lineTo(x, pad + h); g.stroke(); }
 }

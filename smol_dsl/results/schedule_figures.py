@@ -1,18 +1,21 @@
 """Schedule figures: every scheduled channel of one or more schedules over training, its
 per-phase steps and smooth curve (`schedule_figure`; the paper's Figure 2 for plain gear,
 `smol-dsl plot`), or, for schedules of many channels, one panel per kind of channel
-(`kinds_figure`). JAX is imported only when drawing, to evaluate the schedules.
+(`kinds_figure`); a paced schedule with its envelope, and runs' bodies as they trained
+(`Trajectory`). JAX is imported only when drawing, to evaluate the schedules.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib.figure import Figure
 
 from smol_dsl.language.channels import GEAR
+from smol_dsl.language.pacing_certificate import envelope
 from smol_dsl.results.figures import LEGEND_INSIDE, legend_label, place_legend, series_styles
 
 if TYPE_CHECKING:
@@ -28,14 +31,28 @@ CHANNEL_PANELS = 6
 per kind of channel (gear, mass, ...), each channel a line of steps."""
 
 
+@dataclass(frozen=True)
+class Trajectory:
+    """The body a run trained in at every phase (`RunRecord.phase_bodies`), to draw beside
+    the schedules: its label, its schedule's channels and the (phases, channels) bodies."""
+
+    label: str
+    channels: tuple[Channel, ...]
+    bodies: np.ndarray
+
+
 def schedule_figure(
     schedules: Sequence[Schedule],
     *,
     num_phases: int = 100,
     key: jax.Array | None = None,
     smooth_points: int = 1001,
+    trajectories: Sequence[Trajectory] = (),
 ) -> Figure:
-    """Draw each channel per phase (steps) and its smooth curve, the schedules overlaid.
+    """Draw each channel per phase (steps) and its smooth curve, the schedules overlaid; a
+    paced schedule's channel also with its envelope (the band of values it can have in each
+    phase whatever the run's metrics, and its latest trajectory, dotted), and each of
+    `trajectories` (the bodies runs trained in) as a line of steps of its own.
 
     One panel per channel of the union of the schedules' channels (in the order they are
     first declared); every schedule is drawn in every panel, a channel it does not declare
@@ -47,13 +64,23 @@ def schedule_figure(
     Figure; save it with `save_figure(figure, path)` or `figure.savefig(path)`.
     """
     channels = list(dict.fromkeys(channel for schedule in schedules for channel in schedule.channels))
+    channels += [c for run in trajectories for c in run.channels if c not in channels]
     if len(channels) > CHANNEL_PANELS:
         return kinds_figure(schedules, channels, num_phases=num_phases, key=key)
     figure = Figure(figsize=(7.0, 4.2 if len(channels) == 1 else 1.0 + 2.5 * len(channels)), layout="constrained")
     panels = figure.subplots(len(channels), 1, sharex=True, squeeze=False)[:, 0]
-    styles = series_styles(len(schedules))
+    styles = series_styles(len(schedules) + len(trajectories))
     for axes, channel in zip(panels, channels, strict=True):
-        _draw_channel(axes, schedules, channel, styles, num_phases=num_phases, key=key, smooth_points=smooth_points)
+        _draw_channel(
+            axes,
+            schedules,
+            channel,
+            styles[: len(schedules)],
+            num_phases=num_phases,
+            key=key,
+            smooth_points=smooth_points,
+        )
+        _draw_trajectories(axes, trajectories, channel, styles[len(schedules) :], num_phases)
     panels[-1].set_xlabel("training progress (%)")
     if channels == [GEAR]:
         panels[0].set_title(f"Torque scaling schedules ({num_phases} phases)")
@@ -85,6 +112,14 @@ def _draw_channel(
         axes.step(phase_starts, np.append(steps, steps[-1]), where="post", lw=2.0, label=label, **style)
         smooth = np.asarray(curve.value(jnp.asarray(smooth_t), key))
         axes.plot(smooth_t * 100, smooth, color=style["color"], ls=style["ls"], lw=1.0, alpha=0.45)
+        clock = schedule.clock_of(channel)
+        if clock is not None:  # paced: every value a run can have in each phase, and the slowest run's
+            assert schedule.pacing is not None
+            rows = envelope(schedule.pacing.clocks[clock], steps, schedule.tail_phase(num_phases))
+            least, most = (np.append(values, values[-1]) for values in np.asarray([r[2:] for r in rows]).T)
+            axes.fill_between(phase_starts, least, most, step="post", color=style["color"], alpha=0.15, lw=0)
+            latest = np.asarray([steps[low] for low, *_ in rows])
+            axes.step(phase_starts, np.append(latest, latest[-1]), where="post", lw=1.0, ls=":", color=style["color"])
     gear = channel == GEAR
     symbol = "α" if gear else channel.name
     tails = {
@@ -105,6 +140,17 @@ def _draw_channel(
         axes.margins(y=0.12)  # room above a final value at the top of the panel for its label
     axes.set_ylabel("α (actuator gear scale)" if gear else f"{legend_label(channel.name)} (factor)")
     axes.grid(alpha=0.25)
+
+
+def _draw_trajectories(
+    axes: Any, trajectories: Sequence[Trajectory], channel: Channel, styles: Sequence[dict[str, Any]], num_phases: int
+) -> None:
+    """Each run's body in this channel per phase (1 where its schedule does not declare it)."""
+    for run, style in zip(trajectories, styles, strict=True):
+        phases = len(run.bodies)
+        values = run.bodies[:, run.channels.index(channel)] if channel in run.channels else np.ones(phases)
+        starts = np.arange(phases + 1) / phases * 100
+        axes.step(starts, np.append(values, values[-1]), where="post", lw=2.6, label=legend_label(run.label), **style)
 
 
 def kinds_figure(

@@ -3,9 +3,10 @@ phase boundary, and the state a checkpoint's rows replay to.
 
 The decision itself is the schedule's (`smol_dsl.language.pacing.Pacing.decide`, pure and
 jittable), jitted once per pacing and phase count here. It reads the metrics of the rows
-the runner logs (metrics.csv's coverage in %, as a share here), each converted to float32
-as the archive's metrics were, so that a resumed run, replaying its checkpoint's rows,
-decides exactly as it did (bit-exact resume needs no state of its own in the checkpoint).
+the runner logs through `smol_dsl.qdax.pacing.pace_metrics` (as a QDax loop does), each
+converted to float32 as the archive's metrics were, so that a resumed run, replaying its
+checkpoint's rows, decides exactly as it did (bit-exact resume needs no state of its own in
+the checkpoint).
 """
 
 from __future__ import annotations
@@ -18,22 +19,13 @@ from typing import TYPE_CHECKING, Any
 import jax
 import numpy as np
 
+from smol_dsl.qdax.pacing import pace_metrics
 from smol_dsl.rundir import BOUNDARY_EVENTS
 
 if TYPE_CHECKING:
     from smol_dsl.language.channels import Channel
     from smol_dsl.language.pacing import PaceState, Pacing
     from smol_dsl.language.schedule import Schedule
-
-
-def pace_metrics(row: Mapping[str, Any]) -> dict[str, np.float32]:
-    """What a decision reads of a metrics row (or of one run's QDax metrics): coverage as a
-    share (0 to 1), max fitness and QD score, each float32 as the archive computed them."""
-    return {
-        "coverage": np.float32(row["coverage"]) / np.float32(100),
-        "max_fitness": np.float32(row["max_fitness"]),
-        "qd_score": np.float32(row["qd_score"]),
-    }
 
 
 @lru_cache(maxsize=32)
@@ -105,7 +97,6 @@ __all__ = [
     "development_columns",
     "indices",
     "initial",
-    "pace_metrics",
     "replayed",
     "settle",
 ]
