@@ -163,3 +163,28 @@ def test_kill_9_then_resume_of_a_paced_run_and_sweep_equals_uninterrupted(schedu
     assert resumed.returncode == 0, resumed.stderr
     for run in (path for path in paced_sweep.iterdir() if path.is_dir()):
         _same_runs(tmp_path / "sweep" / run.name, run)
+
+
+def test_report_plot_and_explore_show_the_bodies_a_paced_run_reached(paced_runs, paced_sweep, tmp_path, capsys):
+    """report: bodies.png beside the other figures, the re-evaluation figure drawn with the
+    held boundaries left out; plot: the run's own steps over the schedule's envelope;
+    explore: the run's alpha per row, as it trained; robustness's final body: the last."""
+    from smol_dsl.results.explorer import Explorer
+    from smol_dsl.rundir import read_run
+
+    out = tmp_path / "report"
+    assert main(["report", str(paced_sweep), "--no-gaits", "-o", str(out)]) == 0
+    assert {"bodies.png", "bodies.pdf", "reevaluation.png", "table.md"} <= {path.name for path in out.iterdir()}
+    assert "bodies.png" in (out / "index.html").read_text()
+    figure = tmp_path / "paced.png"
+    assert main(["plot", "smol-paced", str(paced_runs["every-other"]), "-o", str(figure)]) == 0
+    assert figure.stat().st_size > 10_000
+    assert "every-other (every-other); 10 phases" in capsys.readouterr().out
+    explorer = Explorer([paced_runs["every-other"]], replay=None, cache=tmp_path / "cache")
+    data = explorer.run_data(0)
+    rows = rows_of(paced_runs["every-other"])
+    assert data["alpha"] == [float(row["alpha"]) for row in rows]
+    record = read_run(paced_runs["every-other"])
+    bodies = record.phase_bodies()[:, 0]
+    starts = phase_starts(rows)
+    assert bodies.tolist() == [np.float32(row["alpha"]) for row in starts] and bodies[-1] == 1.0

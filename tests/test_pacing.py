@@ -247,3 +247,25 @@ def test_the_decision_is_jittable_and_vmaps_over_runs():
         states, {"coverage": coverage, "max_fitness": jnp.zeros(2), "qd_score": jnp.zeros(2)}
     )
     assert isinstance(decided, PaceState) and decided.development.tolist() == [[0], [1]]
+
+
+def test_plot_draws_a_paced_schedule_with_its_envelope(tmp_path, capsys):
+    path = tmp_path / "paced.sched"
+    path.write_text(SMOL_PACED)
+    out = tmp_path / "paced.png"
+    assert main(["plot", str(path), "smol", "--phases", "20", "-o", str(out)]) == 0
+    assert out.stat().st_size > 10_000 and "SMOL-paced, SMOL; 20 phases" in capsys.readouterr().out
+
+
+def test_the_qdax_pacing_functions_refuse_metrics_they_cannot_read():
+    from smol_dsl import qdax as smol
+
+    schedule = smol_dsl.parse(SMOL_PACED)
+    with pytest.raises(ValueError, match="missing qd_score"):
+        smol.pacing_start(schedule, {"coverage": 50.0, "max_fitness": 1.0})
+    state = smol.pacing_start(schedule, metrics(50.0))
+    unpaced = smol_dsl.load("smol")  # no clocks: the body moves on at every boundary
+    plain = smol.pacing_start(unpaced, metrics(50.0))
+    assert plain.development.shape == (0,)
+    assert bool(smol.body_moves(unpaced, plain, smol.pace(unpaced, plain, metrics(10.0), 0, 20), 1, 20))
+    assert not bool(smol.body_moves(schedule, state, smol.pace(schedule, state, metrics(10.0), 0, 20), 1, 20))

@@ -33,6 +33,12 @@ if TYPE_CHECKING:
 def pace_metrics(metrics: Mapping[str, jax.typing.ArrayLike]) -> dict[str, jax.Array]:
     """What a pacing decision reads of QDax's `default_qd_metrics` (or a metrics.csv row):
     coverage as a share (QDax's % over 100, in float32), max fitness and QD score in float32."""
+    missing = [name for name in METRICS if name not in metrics]
+    if missing:
+        raise ValueError(
+            f"a pacing decision reads the metrics {', '.join(METRICS)} (QDax's default_qd_metrics, coverage in %); "
+            f"missing {', '.join(missing)}"
+        )
     values = {name: jnp.asarray(metrics[name], jnp.float32) for name in METRICS}
     values["coverage"] = values["coverage"] / jnp.float32(100)
     return values
