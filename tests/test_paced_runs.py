@@ -84,6 +84,7 @@ def test_the_body_follows_the_clock_and_a_held_phase_keeps_its_archive_bit_for_b
         if row["event"] == "hold":
             assert all(row[name] == "" for name in ("reevaluated", "kept", "moved", "collided", "died")), row
     snapshots = read_snapshots(out)
+    assert all(s.body is not None and s.body[0] == np.float32(starts[s.phase]["alpha"]) for s in snapshots)
     for row in starts[1:]:
         end = next(s for s in snapshots if s.moment == END and s.phase == int(row["phase"]) - 1)
         start = next(s for s in snapshots if s.moment == START and s.phase == int(row["phase"]))
@@ -126,6 +127,7 @@ def test_a_paced_run_in_a_sweep_is_the_same_run_alone(paced_runs, paced_sweep, t
     alone = tmp_path / "smol"
     assert main(["run", "walker2d", "smol", *FLAGS, "--no-progress", "--out", str(alone)]) == 0
     assert_same_rows(paced_sweep / "walker2d-smol-seed0", alone)  # open loop, beside paced runs
+    assert read_snapshots(alone)[0].body is None  # an open-loop run's phases.npz as before: no bodies
     events = [{row["event"] for row in rows_of(path)} for path in paced_sweep.iterdir() if path.is_dir()]
     assert any("hold" in e for e in events) and any("hold" not in e for e in events)  # mixed boundaries
 

@@ -148,7 +148,8 @@ class Explorer:
             "centroids": np.round(final.centroids, 5).tolist(),
             "snapshots": [
                 {"phase": s.phase, "moment": "end" if s.moment else "start", "generation": s.generation,
-                 "fitnesses": _finite_or_none(s.fitnesses)}
+                 "fitnesses": _finite_or_none(s.fitnesses),
+                 "body": None if s.body is None else [float(v) for v in s.body]}
                 for s in run.snapshots
             ],
             "final": _finite_or_none(final.fitnesses),

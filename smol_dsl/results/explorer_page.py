@@ -89,7 +89,8 @@ function drawMap(m, d, snap, cell, lo, hi) {  // a run's archive at moment `snap
     g.fillStyle = fit[c] === null ? "#bbb" : color(hi > lo ? (fit[c] - lo) / (hi - lo) : 1); g.fill();
     if (c === cell) { g.lineWidth = 2; g.strokeStyle = "#e00"; g.stroke(); } });
   const filled = fit.filter((v) => v !== null).length;
-  return s ? `phase ${s.phase}, ${s.moment} (generation ${s.generation}): ${filled} cells, coverage ${(100 * filled / fit.length).toFixed(1)}%`
+  const body = s && s.body ? `, body reached ${s.body.map((v) => v.toFixed(3)).join(", ")}` : "";  // a paced run's
+  return s ? `phase ${s.phase}, ${s.moment} (generation ${s.generation}): ${filled} cells, coverage ${(100 * filled / fit.length).toFixed(1)}%${body}`
     : `final archive: ${filled} cells`;
 }
 function draw() {

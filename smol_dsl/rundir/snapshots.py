@@ -2,7 +2,8 @@
 what each change of body did to the archive (the collapse at a boundary, the refill after
 it) can be seen after the run (`smol-dsl explore`, the report's maps).
 
-A snapshot is every cell's fitness (-inf where empty) and descriptor, taken after the
+A snapshot is every cell's fitness (-inf where empty) and descriptor (and, for a paced run,
+the body its clocks had reached: `bodies`), taken after the
 initial population and after each boundary's re-evaluation (`START`: the phase's first
 archive) and before each boundary and at the end of training (`END`: the phase's last).
 The runner rewrites the file atomically at every boundary (`write_snapshots`); on resume it
@@ -25,17 +26,22 @@ START, END = 0, 1
 """A snapshot's `moment` in its phase: its first archive (after the initial population or
 the boundary's re-evaluation) or its last (before the next boundary, or the final archive)."""
 SNAPSHOT_ARRAYS = ("generation", "phase", "moment", "fitnesses", "descriptors")
+BODIES = "bodies"
+"""A paced run's phases.npz also holds each snapshot's body (its schedule's channels)."""
 
 
 @dataclass(frozen=True)
 class Snapshot:
-    """One run's archive at a moment of a phase: (C,) fitnesses, (C, D) descriptors."""
+    """One run's archive at a moment of a phase: (C,) fitnesses, (C, D) descriptors, and for
+    a paced run the body it had reached."""
 
     generation: int  # generations trained when it was taken
     phase: int
     moment: int  # START or END
     fitnesses: np.ndarray
     descriptors: np.ndarray
+    body: np.ndarray | None = None
+    """A paced run's body then, (channels,) of its schedule (None: its schedule's phase's)."""
 
     @property
     def filled(self) -> np.ndarray:
@@ -43,17 +49,18 @@ class Snapshot:
 
 
 def write_snapshots(directory: Path, snapshots: Sequence[Snapshot]) -> None:
-    """Write phases.npz into a run directory (atomically), every snapshot in order."""
-    write_npz(
-        Path(directory) / SNAPSHOTS_FILE,
-        {
-            "generation": np.asarray([s.generation for s in snapshots], dtype=np.int64),
-            "phase": np.asarray([s.phase for s in snapshots], dtype=np.int32),
-            "moment": np.asarray([s.moment for s in snapshots], dtype=np.int8),
-            "fitnesses": np.stack([np.asarray(s.fitnesses, np.float32) for s in snapshots]),
-            "descriptors": np.stack([np.asarray(s.descriptors, np.float32) for s in snapshots]),
-        },
-    )
+    """Write phases.npz into a run directory (atomically), every snapshot in order (and a
+    paced run's `bodies`, (snapshots, channels), where every snapshot has one)."""
+    arrays = {
+        "generation": np.asarray([s.generation for s in snapshots], dtype=np.int64),
+        "phase": np.asarray([s.phase for s in snapshots], dtype=np.int32),
+        "moment": np.asarray([s.moment for s in snapshots], dtype=np.int8),
+        "fitnesses": np.stack([np.asarray(s.fitnesses, np.float32) for s in snapshots]),
+        "descriptors": np.stack([np.asarray(s.descriptors, np.float32) for s in snapshots]),
+    }
+    if snapshots and all(s.body is not None for s in snapshots):
+        arrays[BODIES] = np.stack([np.asarray(s.body, np.float32) for s in snapshots])
+    write_npz(Path(directory) / SNAPSHOTS_FILE, arrays)
 
 
 class SnapshotsError(RunDirectoryError):
@@ -78,6 +85,7 @@ def read_snapshots(directory: Path) -> list[Snapshot]:
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: np.asarray(data[name]) for name in SNAPSHOT_ARRAYS}
+            bodies = np.asarray(data[BODIES]) if BODIES in data.files else None
     except OSError as error:
         raise SnapshotsError(path, f"cannot be read ({error.strerror or error})") from None
     except Exception as error:  # zipfile.BadZipFile, EOFError, zlib.error, ValueError...: cut short or damaged
@@ -91,9 +99,11 @@ def read_snapshots(directory: Path) -> list[Snapshot]:
     shapes = fitnesses.ndim == 2 and descriptors.ndim == 3 and descriptors.shape[:2] == fitnesses.shape
     if any(values.ndim < 1 or len(values) != count for values in arrays.values()) or not shapes:
         raise SnapshotsError(path, "its arrays do not agree in length or shape")
+    if bodies is not None and (bodies.ndim != 2 or len(bodies) != count):
+        raise SnapshotsError(path, "its bodies do not agree in length or shape with its snapshots")
     return [
-        Snapshot(int(g), int(p), int(m), f, d)
-        for g, p, m, f, d in zip(*(arrays[name] for name in SNAPSHOT_ARRAYS), strict=True)
+        Snapshot(int(g), int(p), int(m), f, d, None if bodies is None else bodies[i])
+        for i, (g, p, m, f, d) in enumerate(zip(*(arrays[name] for name in SNAPSHOT_ARRAYS), strict=True))
     ]
 
 

@@ -211,7 +211,8 @@ class HostLoop:
         fitnesses, descriptors = jax.device_get((state.repertoires.fitnesses, state.repertoires.descriptors))
         for r, snapshots in enumerate(self.snapshots):
             cells = np.asarray(fitnesses[r]).reshape(self.config.num_centroids)
-            snapshots.append(Snapshot(state.generation, state.phase, moment, cells, np.asarray(descriptors[r])))
+            body = self.body(r, state) if self.runs[r].schedule.is_paced else None
+            snapshots.append(Snapshot(state.generation, state.phase, moment, cells, np.asarray(descriptors[r]), body))
 
     def write_snapshots(self) -> None:
         """Every run's phases.npz, with the snapshots taken so far."""
