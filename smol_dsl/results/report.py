@@ -203,17 +203,27 @@ def render_report(
 
 
 def scores_csv(groups: dict[str, list[RunRecord]], robustness: Robustness | None = None) -> bytes:
-    """scores.csv: every run's final scores (and robust coverage per perturbation, where
-    measured) with its directory."""
+    """scores.csv: every run's final scores, its changes of body (the boundaries at which it
+    was re-evaluated: every one for an open-loop schedule, those it moved on at for a paced
+    one) and its coverage at the end of the last phase before the final-body tail (empty for
+    a run all in its tail), robust coverage per perturbation where measured, its directory."""
     scores = io.StringIO(newline="")
     writer = csv.writer(scores)
     perturbations = robustness.perturbations if robustness is not None else []
-    writer.writerow(["schedule", "seed", *METRICS, *(f"robust coverage ({p})" for p in perturbations), "directory"])
+    robust_columns = [f"robust coverage ({p})" for p in perturbations]
+    writer.writerow(["schedule", "seed", *METRICS, *PHASE_COLUMNS, *robust_columns, "directory"])
     for name, runs in groups.items():
         for run in runs:
             robust = [robustness.robust_coverage(run.directory, p) for p in perturbations] if robustness else []
-            writer.writerow([name, run.seed, *(run.final[m] for m in METRICS), *robust, str(run.directory)])
+            before = run.coverage_before_tail()
+            phases = [run.body_changes, "" if before is None else before]
+            writer.writerow([name, run.seed, *(run.final[m] for m in METRICS), *phases, *robust, str(run.directory)])
     return scores.getvalue().encode()
+
+
+PHASE_COLUMNS = ("body changes", "coverage before the tail")
+"""scores.csv's columns of how a run went through its phases (a paced run moves on when its
+archive lets it)."""
 
 
 def gait_files(

@@ -39,7 +39,7 @@ from smol_dsl.rundir.layout import (
     RunDirectoryError,
     leave_out,
 )
-from smol_dsl.rundir.metrics import DEVELOPMENT, column_name, metrics_schema, scheduled_columns
+from smol_dsl.rundir.metrics import BOUNDARY_EVENTS, DEVELOPMENT, column_name, metrics_schema, scheduled_columns
 from smol_dsl.rundir.metrics_reader import final_body_evaluations, first_tail_phase, read_metrics
 from smol_dsl.tasks import task_spec
 from smol_dsl.tasks.anatomy import resolve
@@ -137,6 +137,20 @@ class RunRecord:
         if column not in names:
             return np.ones(self.config.num_phases, dtype=np.float32)
         return self.phase_bodies()[:, names.index(column)]
+
+    @property
+    def body_changes(self) -> int:
+        """The phase boundaries at which the run was re-evaluated in a new body (a paced run
+        held its body at the others)."""
+        return sum(row["event"] == "reevaluate" for row in self.rows)
+
+    def coverage_before_tail(self) -> float | None:
+        """Coverage (%) at the end of the last phase before the first one wholly in the
+        final-body tail: what the curve left the archive with before its last change of body
+        (None for a run all in its tail, or one that has not got there)."""
+        tail = first_tail_phase(self.tail_start, self.config.num_phases)
+        before = [row for row in self.rows if row["phase"] == tail - 1 and row["event"] not in BOUNDARY_EVENTS]
+        return before[-1]["coverage"] if tail > 0 and before and any(r["phase"] >= tail for r in self.rows) else None
 
     def curve(self, metric: str) -> tuple[np.ndarray, np.ndarray]:
         """Training evaluations and the metric, one point per logged row."""
