@@ -178,6 +178,11 @@ def test_report_plot_and_explore_show_the_bodies_a_paced_run_reached(paced_runs,
     assert main(["report", str(paced_sweep), "--no-gaits", "-o", str(out)]) == 0
     assert {"bodies.png", "bodies.pdf", "reevaluation.png", "table.md"} <= {path.name for path in out.iterdir()}
     assert "bodies.png" in (out / "index.html").read_text()
+    scores = {row["schedule"]: row for row in csv.DictReader(open(out / "scores.csv"))}
+    rows = rows_of(paced_sweep / "walker2d-every-other-seed0")
+    assert int(scores["every-other"]["body changes"]) == 5 and int(scores["SMOL"]["body changes"]) == 9
+    last_of_phase_8 = [row for row in rows if row["phase"] == "8" and row["event"] == "train"][-1]
+    assert float(scores["every-other"]["coverage before the tail"]) == float(last_of_phase_8["coverage"])
     figure = tmp_path / "paced.png"
     assert main(["plot", "smol-paced", str(paced_runs["every-other"]), "-o", str(figure)]) == 0
     assert figure.stat().st_size > 10_000
