@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING, Any
 
 import matplotlib
 import numpy as np
+from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from smol_dsl.results.archive_maps import archive_view, draw_archive
 from smol_dsl.results.conditions import COLORS
@@ -65,8 +67,9 @@ def schedule_styles(names: Sequence[str]) -> list[dict[str, Any]]:
     next ones for others; past LEGEND_INSIDE schedules, `series_styles`' colours and dashes."""
     if len(names) > LEGEND_INSIDE:
         return series_styles(len(names))
-    taken = {COLORS[name] for name in names if name in COLORS}
-    free = iter([color for color in matplotlib.rcParams["axes.prop_cycle"].by_key()["color"] if color not in taken])
+    taken = {to_hex(COLORS[name]) for name in names if name in COLORS}
+    cycle = [to_hex(color) for color in matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]]
+    free = iter([color for color in cycle if color not in taken] * len(names))  # never a paper colour shown
     return [{"color": COLORS[name] if name in COLORS else next(free)} for name in names]
 
 
@@ -112,6 +115,7 @@ def bodies_figure(groups: Mapping[str, Sequence[RunRecord]], title: str) -> Figu
             ax.step(phases, median, where="post", lw=1.6, label=legend_label(f"{name} ({len(runs)})"), **style)
             ax.fill_between(phases, low, high, step="post", color=style["color"], alpha=0.2, lw=0)
         ax.set_xlabel("phase")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel(METRICS_SCHEMA[column].label if column in METRICS_SCHEMA.names else column)
         ax.grid(alpha=0.25)
     place_legend(figure, axes[0], title="schedule (runs)", title_fontsize=8)
