@@ -269,3 +269,14 @@ def test_the_qdax_pacing_functions_refuse_metrics_they_cannot_read():
     assert plain.development.shape == (0,)
     assert bool(smol.body_moves(unpaced, plain, smol.pace(unpaced, plain, metrics(10.0), 0, 20), 1, 20))
     assert not bool(smol.body_moves(schedule, state, smol.pace(schedule, state, metrics(10.0), 0, 20), 1, 20))
+
+
+def test_a_channel_a_paced_file_does_not_declare_never_moves_its_body():
+    """In a sweep beside a schedule of more channels, a paced gear-only run's other channels
+    (1 throughout) keep one index, so a boundary where its clock stands still is a hold."""
+    schedule = smol_dsl.parse(SMOL_PACED)
+    held = [np.asarray(schedule.phase_indices([2], phase, 20, ("gear", "mass"))).tolist() for phase in (3, 4)]
+    assert held == [[2, 0], [2, 0]]
+    assert np.asarray(schedule.phase_indices([2], 18, 20, ("gear", "mass"))).tolist() == [18, 0]
+    unpaced = smol_dsl.load("smol")  # without pace: every channel at the budget's phase
+    assert np.asarray(unpaced.phase_indices([], 4, 20, ("gear", "mass"))).tolist() == [4, 4]

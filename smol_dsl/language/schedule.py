@@ -268,8 +268,10 @@ class Schedule:
     ) -> jax.Array:
         """Per channel of `channels` (default the file's), the open-loop phase whose value it
         has during `phase` given the clocks' `development` (K,): `phase` itself for a channel
-        on the budget's clock, in its tail, or not declared. A paced run's body in `phase` is
-        `phase_values(num_phases)[indices, column]`; jittable (`phase` may be traced)."""
+        on the budget's clock or in its tail, and in a paced file 0 for a channel it does not
+        declare (1 throughout: a boundary where only the budget moves changes nothing of it).
+        A paced run's body in `phase` is `phase_values(num_phases)[indices, column]`;
+        jittable (`phase` may be traced)."""
         import jax.numpy as jnp
 
         chosen = self._chosen(channels)
@@ -277,7 +279,8 @@ class Schedule:
         if self.pacing is None:
             return jnp.full((len(chosen),), jnp.asarray(phase, jnp.int32))
         clocks = tuple(self.clock_of(channel) for channel in chosen)
-        return Pacing(self.pacing.clocks, clocks).indices(development, phase, tails)
+        declared = jnp.asarray([channel in self._curves for channel in chosen])
+        return jnp.where(declared, Pacing(self.pacing.clocks, clocks).indices(development, phase, tails), 0)
 
     def envelope_text(self, num_phases: int) -> str:
         """Per phase of `num_phases`, each paced channel's lowest and highest development step
