@@ -98,6 +98,7 @@ LONGEST_UNITS = (
     "test_footprint",
     "test_properties",
     "test_qdax_examples",
+    "test_paced_runs",
     "test_accelerator",
     "test_benchmarks",
     "test_qdax",
