@@ -101,7 +101,8 @@ def main(
             key, subkey = jax.random.split(key)
             if smol.body_moves(schedule, pacing, decided, phase, num_phases):
                 body = smol.phase_body(schedule, decided, phase, num_phases, schedule_key)
-                repertoire = smol.reevaluate(repertoire, score, body, subkey, schedule.extinction, batch_size=batch_size)
+                extinction = schedule.extinction
+                repertoire = smol.reevaluate(repertoire, score, body, subkey, extinction, batch_size=batch_size)
                 emitter_state = smol.new_phase(emitter_state, repertoire)
                 decided = smol.settle(schedule, pacing, decided, metrics_function(repertoire))
             pacing = decided

@@ -46,7 +46,7 @@ def test_installed_package_works_from_any_directory(installed, tmp_path):
     package = installed / "smol_dsl"
     assert (package / "language" / "sched.lark").is_file()
     assert sorted(path.stem for path in (package / "schedules").glob("*.sched")) == LIBRARY
-    assert len(LIBRARY) == 11  # the paper's 8 and growth, leg-damage, low-gravity
+    assert len(LIBRARY) == 13  # the paper's 8, growth, leg-damage, low-gravity, smol-paced and human-paced
     env = {**os.environ, "PYTHONPATH": str(installed)}
     result = subprocess.run(
         [sys.executable, "-c", PROBE.format(site=str(installed), library=LIBRARY)],

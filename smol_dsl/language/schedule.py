@@ -267,20 +267,17 @@ class Schedule:
         channels: Sequence[Channel | str] | None = None,
     ) -> jax.Array:
         """Per channel of `channels` (default the file's), the open-loop phase whose value it
-        has during `phase` given the clocks' `development` (K,): `phase` itself for a channel
-        on the budget's clock or in its tail, and in a paced file 0 for a channel it does not
-        declare (1 throughout: a boundary where only the budget moves changes nothing of it).
-        A paced run's body in `phase` is `phase_values(num_phases)[indices, column]`;
-        jittable (`phase` may be traced)."""
+        has during `phase` given the clocks' `development` (K,): `phase` on the budget's clock
+        or in its tail; 0 in a paced file for a channel it does not declare (1 throughout).
+        A paced run's body is `phase_values(num_phases)[indices, column]`; jittable."""
         import jax.numpy as jnp
 
         chosen = self._chosen(channels)
-        tails = self.channel_tail_phases(num_phases, chosen)
         if self.pacing is None:
             return jnp.full((len(chosen),), jnp.asarray(phase, jnp.int32))
-        clocks = tuple(self.clock_of(channel) for channel in chosen)
-        declared = jnp.asarray([channel in self._curves for channel in chosen])
-        return jnp.where(declared, Pacing(self.pacing.clocks, clocks).indices(development, phase, tails), 0)
+        pacing = Pacing(self.pacing.clocks, tuple(self.clock_of(channel) for channel in chosen))
+        indices = pacing.indices(development, phase, self.channel_tail_phases(num_phases, chosen))
+        return jnp.where(jnp.asarray([channel in self._curves for channel in chosen]), indices, 0)
 
     def envelope_text(self, num_phases: int) -> str:
         """Per phase of `num_phases`, each paced channel's lowest and highest development step
