@@ -4,6 +4,7 @@ trajectory keeps, whatever the metrics do (hypothesis)."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -54,8 +55,7 @@ def realised(
     pacing = schedule.pacing
     assert pacing is not None
     values = np.asarray(schedule.phase_values(num_phases))
-    tail_phase = schedule.tail_phase(num_phases)
-    decide = jax.jit(lambda state, m, phase: pacing.decide(state, m, phase, tail_phase))
+    decide = _jitted_decide(pacing, schedule.tail_phase(num_phases))
     state = pacing.initial(after[0])
     developments, bodies, waits = [], [], []
     for phase in range(num_phases):
@@ -67,6 +67,12 @@ def realised(
             decided = decide(state, history[phase], phase)
             state = pacing.settle(state, decided, after[phase + 1])
     return np.stack(developments), np.stack(bodies), np.stack(waits)
+
+
+@functools.lru_cache(maxsize=8)
+def _jitted_decide(pacing, tail_phase: int):
+    """The decision jitted once per pacing (equal pacings parsed again share it)."""
+    return jax.jit(lambda state, m, phase: pacing.decide(state, m, phase, tail_phase))
 
 
 # ---------------------------------------------------------------- the language
