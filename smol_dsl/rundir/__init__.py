@@ -15,7 +15,8 @@ Modules, one concept each:
 - `presets`: a run's settings by name (`PRESETS`: `paper`, `quick`), `preset_config`;
 - `metrics`: metrics.csv's columns (`METRICS_SCHEMA`, one `Column` per column; a run's body
   is one column per channel: `column_name`, `metrics_schema(channels, clocks)`, `scheduled_columns`,
-  and a row's values `body_columns`; a paced run's `development_names`; the events of a
+  and a row's values `body_columns`; a schedule's `schedule_schema`; a paced run's
+  `development_names` and the bodies its rows log, `trained_bodies`; the events of a
   boundary's row, `BOUNDARY_EVENTS`) and its writer `MetricsLog`;
 - `metrics_reader`: the checked reader `read_metrics` (`schema_of_header`), and where the
   final-body tail starts (`first_tail_phase`, `final_body_evaluations`);
@@ -111,7 +112,9 @@ from smol_dsl.rundir.metrics import (
     development_names,
     metrics_row,
     metrics_schema,
+    schedule_schema,
     scheduled_columns,
+    trained_bodies,
 )
 from smol_dsl.rundir.metrics_reader import final_body_evaluations, first_tail_phase, read_metrics, schema_of_header
 from smol_dsl.rundir.presets import PRESETS, preset_config
@@ -189,9 +192,11 @@ __all__ = [
     "read_run",
     "read_text",
     "record_environment_change",
+    "schedule_schema",
     "scheduled_columns",
     "schema_of_header",
     "scoring_layout",
+    "trained_bodies",
     "write_archive",
     "write_npz",
     "write_robustness",

@@ -15,10 +15,15 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from smol_dsl.language.channels import GEAR, Channel
 from smol_dsl.rundir.files import write_text
+
+if TYPE_CHECKING:
+    from smol_dsl.language.schedule import Schedule
 
 EVENTS = ("init", "train", "reevaluate", "reseed", "hold")
 """The values of metrics.csv's `event` column."""
@@ -276,6 +281,22 @@ def metrics_schema(channels: Sequence[Channel] = (), clocks: int = 0) -> Metrics
         return METRICS_SCHEMA
     at = METRICS_SCHEMA.names.index(ALPHA) + 1
     return MetricsSchema(METRICS_SCHEMA.columns[:at] + extra + METRICS_SCHEMA.columns[at:])
+
+
+def schedule_schema(schedule: Schedule) -> MetricsSchema:
+    """The columns of a run of `schedule`: its channels' and, where it is paced, one
+    development column per `pace` line."""
+    return metrics_schema(schedule.channels, len(schedule.pacing.clocks) if schedule.pacing is not None else 0)
+
+
+def trained_bodies(open_loop: np.ndarray, channels: Sequence[Channel], rows: Sequence[Mapping[str, Any]]) -> np.ndarray:
+    """(phases, channels): the body a paced run trained in at every phase, as its `rows` log
+    it; `open_loop` (its schedule's values per phase) for the phases the rows do not reach."""
+    bodies = np.array(open_loop, dtype=np.float32, copy=True)
+    names = [column_name(channel) for channel in channels]
+    for row in rows:
+        bodies[row["phase"]] = [row[name] for name in names]
+    return bodies
 
 
 def scheduled_columns(channels: Sequence[Channel]) -> tuple[str, ...]:

@@ -39,7 +39,14 @@ from smol_dsl.rundir.layout import (
     RunDirectoryError,
     leave_out,
 )
-from smol_dsl.rundir.metrics import BOUNDARY_EVENTS, DEVELOPMENT, column_name, metrics_schema, scheduled_columns
+from smol_dsl.rundir.metrics import (
+    BOUNDARY_EVENTS,
+    DEVELOPMENT,
+    column_name,
+    schedule_schema,
+    scheduled_columns,
+    trained_bodies,
+)
 from smol_dsl.rundir.metrics_reader import final_body_evaluations, first_tail_phase, read_metrics
 from smol_dsl.tasks import task_spec
 from smol_dsl.tasks.anatomy import resolve
@@ -172,12 +179,9 @@ class RunRecord:
         if isinstance(schedule, ScheduleError):
             raise RunDirectoryError(f"{self.directory / SCHEDULE_FILE}: {schedule}")
         values = schedule.checked_phase_values(self.config.num_phases, schedule_key(self.seed), schedule.channels)
-        bodies = np.array(values, dtype=np.float32)
         if schedule.is_paced:
-            names = [column_name(channel) for channel in schedule.channels]
-            for row in self.rows:
-                bodies[row["phase"]] = [row[name] for name in names]
-        return bodies
+            return trained_bodies(values, schedule.channels, self.rows)
+        return np.asarray(values, dtype=np.float32)
 
     def final_archive(self) -> FinalArchive:
         """The final archive, read (and checked) if it was not."""
@@ -200,8 +204,7 @@ def read_run(directory: Path) -> RunRecord:
     schedule = _schedule_of(directory, source, config)
     final_body = {channel.name: value for channel, value in schedule.final_body.items() if value != 1}
     _check_certificate(directory, certificate, schedule, final_body)
-    clocks = len(schedule.pacing.clocks) if schedule.pacing is not None else 0
-    rows = read_metrics(directory / METRICS_FILE, config, metrics_schema(schedule.channels, clocks))
+    rows = read_metrics(directory / METRICS_FILE, config, schedule_schema(schedule))
     _check_tail_rows(directory, rows, schedule, config.num_phases)
     run = RunRecord(
         directory,

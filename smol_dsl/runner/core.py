@@ -167,7 +167,7 @@ class TrainingState:
     indices: np.ndarray | None = None  # paced courses: (padded runs, channels), the open-loop phase of each body
     paces: tuple[PaceState | None, ...] = ()  # paced courses: each real run's clocks (None: unpaced)
 
-    def development(self, run: int) -> PaceState | None:
+    def pace(self, run: int) -> PaceState | None:
         """Run `run`'s pacing state (None: unpaced, or an unpaced course)."""
         return self.paces[run] if self.paces else None
 
@@ -188,8 +188,7 @@ class Outcome:
         counts = None
         if self.reevaluation is not None and self.events[run] != HOLD:
             counts = {name: int(values[run]) for name, values in self.reevaluation.items()}
-        metrics = {name: float(values[run]) for name, values in self.metrics.items()}
-        return self.events[run], metrics, int(self.non_finite[run]), counts
+        return self.events[run], _row(self.metrics, run), int(self.non_finite[run]), counts
 
 
 def start(

@@ -68,14 +68,15 @@ def indices(
     return np.asarray(schedule.phase_indices(state.development, phase, num_phases, channels), dtype=np.int64)
 
 
-def development_columns(schedule: Schedule, state: PaceState | None) -> dict[str, int]:
-    """A paced run's development columns of a metrics row (none for an unpaced one)."""
+def development_columns(state: PaceState | None) -> dict[str, int]:
+    """A paced run's development columns of a metrics row, one per clock (none for an
+    unpaced run)."""
     from smol_dsl.rundir import development_names
 
     if state is None:
         return {}
-    names = development_names(len(schedule.pacing.clocks) if schedule.pacing is not None else 0)
-    return {name: int(step) for name, step in zip(names, np.asarray(state.development), strict=True)}
+    steps = np.asarray(state.development)
+    return {name: int(step) for name, step in zip(development_names(len(steps)), steps, strict=True)}
 
 
 def replayed(schedule: Schedule, rows: Sequence[Mapping[str, Any]], num_phases: int) -> PaceState | None:

@@ -132,10 +132,7 @@ class HostLoop:
         self.checkpoint, self.progress = checkpoint, progress
         self.owner = owner(runs, config)
         channels = course.engine.channels
-        self.schemas = [
-            rundir.metrics_schema(run.schedule.channels, len(run.schedule.pacing.clocks) if run.schedule.pacing else 0)
-            for run in runs
-        ]
+        self.schemas = [rundir.schedule_schema(run.schedule) for run in runs]
         # each run's own bodies, the columns of its schedule's channels (its metrics.csv columns and result)
         self.own_bodies = [
             course.bodies[r][:, [channels.index(c) for c in run.schedule.channels]] for r, run in enumerate(runs)
@@ -186,7 +183,7 @@ class HostLoop:
             generation=state.generation,
             phase=state.phase,
             **self.columns(r, state),
-            **pacing.development_columns(self.runs[r].schedule, state.development(r)),
+            **pacing.development_columns(state.pace(r)),
             event=event,
             evaluations=int(state.evaluations[r]),
             reevaluations=int(state.reevaluations[r]),
@@ -240,12 +237,10 @@ class HostLoop:
     def trained_bodies(self, run: int) -> np.ndarray:
         """(phases, channels): the body a run trained in at every phase, as its rows log it
         (a paced run's realised bodies; phases not reached yet: the open-loop ones)."""
-        bodies = np.array(self.own_bodies[run], copy=True)
-        if self.course.paced:
-            names = [rundir.column_name(channel) for channel in self.runs[run].schedule.channels]
-            for row in self.rows[run]:
-                bodies[row["phase"]] = [row[name] for name in names]
-        return bodies
+        schedule = self.runs[run].schedule
+        if schedule.is_paced:
+            return rundir.trained_bodies(self.own_bodies[run], schedule.channels, self.rows[run])
+        return self.own_bodies[run]
 
     def run_states(self, state: TrainingState, finished: bool = False) -> list[RunState]:
         """What a checkpoint records of each run's progress (`RunState`)."""
