@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 from small_runs import SETTINGS, small_config, small_task
@@ -37,13 +38,17 @@ def test_qdax_map_elites_under_smol_is_smol_dsl_run(schedule):
     """The same seed and settings: QDax's own `MAPElites.init`/`update` loop with smol-dsl's
     scoring, re-evaluation and first draws ends with `smol-dsl run`'s archive: the same elites
     in the same cells, bit for bit, with the same fitnesses to float32 rounding, and it logs
-    its metrics. (The rollout is compiled inside QDax's fused `update` there and as the
-    runner's own scoring program here; jax 0.12's CPU compiler can round a step's physics
-    differently in the two: 1 ulp of fitness in 1 of 32 cells, measured.) Under SMOL-paced the
-    loop's pacing decisions (`smol.pace`) take the runner's: the same bodies, phase by phase."""
+    its metrics. Both on one device, as the example's loop runs: sharded over two, the
+    runner's population is scored by another program, which jax 0.12's CPU compiler can
+    round differently, enough to change which of two close candidates keeps a cell (measured
+    under SMOL-paced; test_devices holds sharded runs to fitnesses within 1e-5). (The rollout is
+    compiled inside QDax's fused `update` there and as the runner's own scoring program here;
+    jax 0.12 can round a step's physics differently in the two: 1 ulp of fitness in 1 of 32
+    cells, measured.) Under SMOL-paced the loop's pacing decisions (`smol.pace`) take the
+    runner's: the same bodies, phase by phase."""
     repertoire, bodies, history = example("qdax_map_elites").main(schedule, seed=2, **SIZES)
     config = small_config(seed=2, num_init_cvt_samples=5000)
-    result = run_experiment(small_task(), smol_dsl.load(schedule), config)
+    result = run_experiment(small_task(), smol_dsl.load(schedule), config, devices=jax.devices()[:1])
     if schedule == "smol-paced":  # the condition held at some boundaries and not at others
         assert {row["event"] for row in result.metrics} >= {"hold", "reevaluate"}
     np.testing.assert_array_equal(bodies, result.bodies)
@@ -53,8 +58,8 @@ def test_qdax_map_elites_under_smol_is_smol_dsl_run(schedule):
     np.testing.assert_allclose(theirs_fitness, our_fitness, rtol=1e-6)
     np.testing.assert_array_equal(np.asarray(repertoire.descriptors), np.asarray(ours.descriptors))
     for theirs, mine in zip(
-        (np.asarray(x) for x in __import__("jax").tree.leaves(repertoire.genotypes)),
-        (np.asarray(x) for x in __import__("jax").tree.leaves(ours.genotypes)),
+        (np.asarray(x) for x in jax.tree.leaves(repertoire.genotypes)),
+        (np.asarray(x) for x in jax.tree.leaves(ours.genotypes)),
         strict=True,
     ):
         np.testing.assert_array_equal(theirs, mine)
