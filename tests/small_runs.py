@@ -27,14 +27,14 @@ def small_config(task: str = "walker2d", **overrides):
     return preset_config(task, "quick", **{**SETTINGS, **overrides})
 
 
-def run_environment(channels=("gear",)):
+def run_environment(channels=("gear",), physics="spring"):
     """What environment.json records of a `smol-dsl run` in this test process (its devices,
     one run a step), for run directories that tests set up by hand."""
     import jax
 
     from smol_dsl.rundir import describe_environment, scoring_layout
 
-    return describe_environment(jax.local_devices(), scoring_layout(1, 0, 1, list(channels)))
+    return describe_environment(jax.local_devices(), scoring_layout(1, 0, 1, list(channels)), physics)
 
 
 def small_task(name: str = "walker2d"):

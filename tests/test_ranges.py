@@ -42,8 +42,8 @@ def test_channels_proven_alone_are_refused_when_their_product_leaves_the_range()
 def test_a_plain_factor_the_physics_cannot_take_is_refused_on_every_task(task):
     ends = 0
     for kind in ("gear", "mass", "friction", "gravity"):
-        assert kind in task_spec(task).factor_ranges, f"{task} states no {kind} range"
-        allowed = factor_range(task_spec(task).factor_ranges, kind)
+        assert kind in task_spec(task).ranges("spring"), f"{task} states no {kind} range"
+        allowed = factor_range(task_spec(task).ranges("spring"), kind)
         for value, way in ((allowed.high * 1.5, "up to"), (allowed.low / 1.5, "down to")):
             if not FLOAT32_RANGE.low < value < FLOAT32_RANGE.high:
                 continue  # an end at float32's: the language itself refuses what lies beyond
@@ -114,7 +114,7 @@ def assert_physics_gets_factors_in_range(schedule: smol_dsl.Schedule) -> None:
         if not any(channel.kind == kind for channel in channels):
             continue
         values = np.asarray(factors(bodies))
-        allowed = factor_range(WALKER.factor_ranges, kind)
+        allowed = factor_range(WALKER.ranges(), kind)
         assert np.isfinite(values).all(), (kind, values)
         # float32 rounding of a product of factors proven in range: a few ulps past the bound
         assert (values >= allowed.low * (1 - 1e-5)).all() and (values <= allowed.high * (1 + 1e-5)).all(), (

@@ -479,7 +479,7 @@ config = read_config(run / "config.json")
 assert read_metrics(run / "metrics.csv", config)[-1]["mass"] > 0
 assert read_final_archive(run, config).fitnesses.shape == (config.num_centroids,)
 assert load_archive(run).filled.shape == (config.num_centroids,)
-task_spec("walker2d").factor_ranges["gear"]
+task_spec("walker2d").ranges("mjx")
 """
     assert loaded_modules(code, LANGUAGE_AND_TRAINING) == []
 

@@ -4,7 +4,16 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from smol_dsl.cli.common import EXIT_OK, EXIT_USAGE, check_task, load_all, positive_int, print_errors
+from smol_dsl.cli.common import (
+    EXIT_OK,
+    EXIT_USAGE,
+    UsageError,
+    add_physics_option,
+    check_task,
+    load_all,
+    positive_int,
+    print_errors,
+)
 from smol_dsl.errors import ScheduleError
 from smol_dsl.rundir.presets import QUICK_COMMON
 
@@ -31,6 +40,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="TASK",
         help="also check the channels' targets against TASK's body, and print its actuators, links and groups",
     )
+    add_physics_option(check, "with --task: prove the factor ranges the task takes on")
     check.add_argument(
         "--phases",
         type=positive_int,
@@ -44,15 +54,20 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def check_schedules(args: argparse.Namespace) -> int:
+    from smol_dsl.tasks.physics import DEFAULT_PHYSICS
+
+    if args.task is None and args.physics != DEFAULT_PHYSICS:
+        raise UsageError(f"--physics {args.physics} needs --task: it proves the factors a task takes on that physics")
     schedules, errors = load_all(args.schedules)
     if args.task is not None:
         from smol_dsl.tasks import task_spec
 
         check_task(args.task)
         spec = task_spec(args.task)
-        schedules, errors = _check_bodies(schedules, errors, spec)
+        schedules, errors = _check_bodies(schedules, errors, spec, args.physics)
         if not args.quiet:
             print(_anatomy_text(spec.anatomy, args.task))
+            print(_ranges_text(spec, args.physics))
     if not args.quiet:
         for schedule in schedules:
             about = f" - {schedule.description}" if schedule.description else ""
@@ -68,12 +83,15 @@ def check_schedules(args: argparse.Namespace) -> int:
     return EXIT_USAGE if errors else EXIT_OK
 
 
-def _check_bodies(schedules: list[Schedule], errors: list[str], spec: TaskSpec) -> tuple[list[Schedule], list[str]]:
-    """The schedules whose channels the task's body has, and the errors of the others."""
+def _check_bodies(
+    schedules: list[Schedule], errors: list[str], spec: TaskSpec, physics: str
+) -> tuple[list[Schedule], list[str]]:
+    """The schedules whose channels the task's body has and whose factors stay within what
+    it takes on `physics`, and the errors of the others."""
     fitting = []
     for schedule in schedules:
         try:
-            spec.check_schedule(schedule)
+            spec.check_schedule(schedule, physics)
             fitting.append(schedule)
         except ScheduleError as error:
             errors.append(str(error))
@@ -85,3 +103,16 @@ def _anatomy_text(anatomy: Anatomy | None, task: str) -> str:
     if anatomy is None:
         return f"{task}: its body is not listed; only channels without targets (`channel gear`) can be checked"
     return "\n".join(f"{task}: {text}" for text in anatomy.listing().values())
+
+
+def _ranges_text(spec: TaskSpec, physics: str) -> str:
+    """The factors the task takes on `physics`, per kind of channel, and how each was found."""
+    from smol_dsl.language.channels import CHANNEL_KINDS
+    from smol_dsl.tasks.ranges import factor_range
+
+    ranges = spec.ranges(physics)
+    lines = [f"{spec.name} on {physics} takes these factors (a part's factor: the product of its channels'):"]
+    for kind in CHANNEL_KINDS:
+        allowed = factor_range(ranges, kind)
+        lines.append(f"  {kind}: {allowed.low:g} .. {allowed.high:g} ({allowed.found})")
+    return "\n".join(lines)

@@ -39,6 +39,7 @@ OPTIONS = Options(
     num_phases="--phases",
     num_centroids="--centroids",
     episode_length="--episode-length",
+    physics="--physics",
     seed="--seed",
     preset="--preset",
     schedule="SCHEDULE",
@@ -84,6 +85,7 @@ def add_run_options(command: argparse.ArgumentParser) -> None:
     command.add_argument("--batch-size", type=positive_int, default=None, metavar="B", help="offspring per generation")
     command.add_argument("--centroids", type=positive_int, default=None, metavar="C", help="CVT cells in the archive")
     command.add_argument("--episode-length", type=positive_int, default=None, metavar="L", help="steps per episode")
+    add_physics_option(command, "simulate the task with")
     command.add_argument(
         "--dry-run",
         action="store_true",
@@ -98,6 +100,26 @@ def add_run_options(command: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with --dry-run: print the arithmetic only, without compiling or timing anything (seconds)",
     )
+
+
+def add_physics_option(command: argparse.ArgumentParser, what: str) -> None:
+    """--physics: spring (the paper's, the default) or mjx (`smol_dsl.tasks.physics`)."""
+    from smol_dsl.tasks.physics import DEFAULT_PHYSICS, PHYSICS, PHYSICS_NAMES
+
+    command.add_argument(
+        "--physics",
+        choices=PHYSICS_NAMES,
+        default=DEFAULT_PHYSICS,
+        help=f"{what}: " + "; ".join(f"{physics.name}, {physics.help}" for physics in PHYSICS.values()),
+    )
+
+
+def physics_label(task: str, physics: str) -> str:
+    """How default output directories name a task on a physics: the task alone on the
+    default physics (spring), `TASK-PHYSICS` on another, so that the two never share one."""
+    from smol_dsl.tasks.physics import DEFAULT_PHYSICS
+
+    return task if physics == DEFAULT_PHYSICS else f"{task}-{physics}"
 
 
 def add_devices_option(command: argparse.ArgumentParser, what: str) -> None:

@@ -82,7 +82,7 @@ class Reproduce(Sweep):
         return 1
 
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
-        return Path("runs") / f"{args.task}-reproduce"
+        return Path("runs") / f"{common.physics_label(args.task, config.physics)}-reproduce"
 
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
         """The sweep's first line, then the report of the sweep in OUT/report; a process

@@ -274,7 +274,9 @@ class Run(TrainingCommand):
         from smol_dsl.rundir.layout import run_name
         from smol_dsl.runner.directories import schedule_stem
 
-        return Path("runs") / run_name(args.task, schedule_stem(schedules[0]), config.seed)
+        return Path("runs") / run_name(
+            common.physics_label(args.task, config.physics), schedule_stem(schedules[0]), config.seed
+        )
 
     def announcement(self, plan: Plan) -> str:
         config, (schedule,) = plan.config, plan.schedules
@@ -282,6 +284,7 @@ class Run(TrainingCommand):
             f"{config.task} under {schedule.name} ({plan.args.schedules[0]}), preset {config.preset}: "
             f"{config.evaluations} evaluations in batches of {config.batch_size}, {config.num_phases} phases, "
             f"{config.num_centroids} cells, {config.episode_length}-step episodes, seed {config.seed}"
+            + physics_note(config)
         )
 
     def note(self, args: argparse.Namespace, config: RunConfig) -> str | None:
@@ -323,7 +326,7 @@ class Sweep(TrainingCommand):
         return list(range(args.first_seed, args.first_seed + args.seeds))
 
     def default_out(self, args: argparse.Namespace, schedules: list[Schedule], config: RunConfig) -> Path:
-        return Path("runs") / f"{args.task}-sweep"
+        return Path("runs") / f"{common.physics_label(args.task, config.physics)}-sweep"
 
     def announcement(self, plan: Plan) -> str:
         config, (index, parts), devices = plan.config, plan.part, plan.devices
@@ -332,7 +335,7 @@ class Sweep(TrainingCommand):
             f"{config.task}, {len(plan.schedules)} schedule(s) x {len(plan.seeds)} seed(s) = {plan.runs} runs{share} "
             f"on {len(devices)} {devices[0].platform} device(s), preset {config.preset}: {config.evaluations} "
             f"evaluations per run in batches of {config.batch_size}, {config.num_phases} phases, "
-            f"{config.num_centroids} cells, {config.episode_length}-step episodes"
+            f"{config.num_centroids} cells, {config.episode_length}-step episodes" + physics_note(config)
         )
 
     def summary(self, plan: Plan, results: list[RunResult]) -> str:
@@ -356,6 +359,7 @@ def _config(args: argparse.Namespace) -> RunConfig:
         batch_size=args.batch_size,
         num_centroids=args.centroids,
         episode_length=args.episode_length,
+        physics=args.physics,
     )
 
 
@@ -419,3 +423,10 @@ def use_cpu_cores_as_devices() -> None:
     if "xla_force_host_platform_device_count" not in flags:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
+
+
+def physics_note(config: RunConfig) -> str:
+    """What an announcement adds for a run on another physics than the default (spring)."""
+    from smol_dsl.tasks.physics import DEFAULT_PHYSICS, PHYSICS
+
+    return "" if config.physics == DEFAULT_PHYSICS else f", on {PHYSICS[config.physics].help.split(',')[0]}"

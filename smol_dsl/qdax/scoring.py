@@ -60,12 +60,19 @@ def drop_non_finite(fitnesses: jax.Array, descriptors: jax.Array) -> tuple[jax.A
     return fitnesses, descriptors, finite
 
 
-def as_task(task: Task | str) -> Task:
-    """A Task, or the bundled task of that name (its default episode length and network)."""
+def as_task(task: Task | str, physics: str | None = None) -> Task:
+    """A Task, or the bundled task of that name (its default episode length and network) on
+    `physics` (spring by default); a ValueError for a Task simulated on another physics than
+    a `physics` given."""
     if isinstance(task, Task):
+        if physics is not None and physics != task.physics:
+            raise ValueError(
+                f"task {task.name} is simulated on {task.physics}, not {physics}: build it with "
+                f"make_task({task.name!r}, physics={physics!r}), or leave physics out"
+            )
         return task
     if isinstance(task, str):
-        return make_task(task)
+        return make_task(task, **({} if physics is None else {"physics": physics}))
     raise TypeError(f"task is a smol_dsl Task (smol_dsl.tasks.make_task) or a task's name, not {task!r}")
 
 
@@ -78,13 +85,13 @@ def as_schedule(schedule: Schedule | str | os.PathLike[str]) -> Schedule:
     raise TypeError(f"schedule is a smol_dsl Schedule (smol_dsl.load) or a .sched path or name, not {schedule!r}")
 
 
-def task_for(task: Task | str, schedule: Schedule) -> Task:
-    """The task under the schedule's channels; a ValueError (the located message of `smol-dsl
-    check --task`) if the schedule names parts the task lacks or may give an actuator or a
-    link a factor outside the range the task's physics takes."""
-    task = as_task(task)
+def task_for(task: Task | str, schedule: Schedule, physics: str | None = None) -> Task:
+    """The task (`as_task`) under the schedule's channels; a ValueError (the located message
+    of `smol-dsl check --task`) if the schedule names parts the task lacks or may give an
+    actuator or a link a factor outside the range the task's physics takes."""
+    task = as_task(task, physics)
     try:
-        task.spec.check_schedule(schedule)
+        task.spec.check_schedule(schedule, task.physics)
     except ScheduleError as error:
         raise ValueError(str(error)) from None
     return task.with_channels(schedule.channels)
@@ -140,6 +147,7 @@ def scoring_function(
     seed: int = 0,
     start: State | None = None,
     transitions: bool = True,
+    physics: str | None = None,
 ) -> Score:
     """QDax's scoring function of `task` with the body of `schedule` as an argument:
     `score(genotypes, key, body) -> (fitnesses, descriptors, extra_scores)`.
@@ -149,6 +157,8 @@ def scoring_function(
     start of `smol-dsl run --seed seed` (or `start`, a state of the task's env made in the
     standard body), moved into the body; `key` is QDax's argument and is not used (episodes
     start deterministically, as in QDax's deterministic Brax scoring).
+    A task given by name is built on `physics` (`spring`, the default, or `mjx`); a Task is
+    simulated on its own (`make_task(name, physics="mjx")`), and a `physics` given must be it.
     Genotypes are a batch of the task's policy parameters, or a (batch, parameters) array
     of flat ones (CMA emitters). Non-finite results come back as fitness -inf (never
     inserted); `extra_scores["transitions"]` holds QDax's `QDTransition`s unless
@@ -163,7 +173,7 @@ def scoring_function(
     and `render` refuse it; a traced body is not looked at), or genotypes of other policies.
     """
     schedule = as_schedule(schedule)
-    task = task_for(task, schedule)
+    task = task_for(task, schedule, physics)
     seed = check_seed(seed, "seed")
     starts = [start] if start is not None else []  # the episode start, made at the first scoring
 
@@ -207,7 +217,7 @@ def check_body(task: Task, body: Any) -> None:
     refuses: a factor that is not finite and above 0, or a part's factor outside the range
     the task's physics takes (`TaskSpec.body_problem`)."""
     values = np.asarray(body, dtype=np.float64).reshape(-1)
-    problem = task.spec.body_problem(dict(zip(task.channels, values.tolist(), strict=True)))
+    problem = task.spec.body_problem(dict(zip(task.channels, values.tolist(), strict=True)), task.physics)
     if problem is not None:
         raise ValueError(f"body {values.tolist()}: {problem}")
 

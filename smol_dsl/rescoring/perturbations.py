@@ -221,12 +221,13 @@ def _check_run_body(run: RunRecord, channel: Channel, factors: Sequence[float]) 
     final = dict(zip(run.channels, run.phase_bodies()[-1].tolist(), strict=True))
     spec = task_spec(run.task)
     for factor in factors:
-        problem = spec.body_problem({**final, channel: final[channel] * factor})
+        problem = spec.body_problem({**final, channel: final[channel] * factor}, run.config.physics)
         if problem is not None:
             raise RobustnessError(
                 f"body {channel.name}={factor:g}: {run.directory}'s final {channel.name} "
                 f"({final[channel]:g}) times {factor:g} is outside what {run.task}'s physics takes: {problem}; "
-                f"give factors closer to 1 (`smol-dsl check --task {run.task}` shows the ranges)"
+                f"give factors closer to 1 (`smol-dsl check --task {run.task} --physics {run.config.physics}` shows "
+                "the ranges)"
             )
 
 

@@ -98,7 +98,7 @@ def replay_layout(run: RunRecord) -> ReplayLayout:
             inexact=f"it was scored on {count} {platform} device(s); this machine has {len(local)} {local[0].platform}",
         )
     devices = local[:count]
-    differences = environment_differences(recorded, describe_environment(devices))
+    differences = environment_differences(recorded, describe_environment(devices, physics=run.config.physics))
     changes = read_environment_changes(run.directory)
     inexact = (
         f"it is replayed under another environment ({'; '.join(differences)})"
@@ -143,7 +143,7 @@ def replay_elites(
     layout = replay_layout(run)
 
     def engine_of(episode_length: int) -> Any:
-        task = shared_task(config.task, episode_length, tuple(config.hidden_layer_sizes))
+        task = shared_task(config.task, episode_length, tuple(config.hidden_layer_sizes), config.physics)
         shaped = dataclasses.replace(config, episode_length=episode_length)
         return shared_engine(task, shaped, layout.devices, layout.runs_per_step, layout.runs, layout.channels)
 

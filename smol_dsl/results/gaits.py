@@ -204,7 +204,8 @@ def resolve_bodies(specs: Sequence[str], run: RunRecord) -> list[tuple[str, dict
         if spec.strip() in (earlier.strip() for earlier in specs[:index]):
             raise RenderError(f"--body {spec} is given twice; give each body once")
         label, body = resolve_body(spec, names, bodies)
-        problem = task_spec(run.task).body_problem({Channel.parse(name): value for name, value in body.items()})
+        factors = {Channel.parse(name): value for name, value in body.items()}
+        problem = task_spec(run.task).body_problem(factors, run.config.physics)
         if problem is not None:
             raise RenderError(f"--body {spec}: {problem}")
         resolved.append((label, body))

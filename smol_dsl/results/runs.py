@@ -138,13 +138,16 @@ def _check_finished(runs: Sequence[RunRecord]) -> None:
 
 
 def _check_same_settings(runs: Sequence[RunRecord]) -> None:
-    """Refuse runs whose settings (the seed aside) differ from the first run's, or whose
-    metrics.csv logs other generations and phases than the first run's, on the same settings."""
+    """Refuse runs whose settings (the seed and the physics aside) differ from the first run's,
+    or whose metrics.csv logs other generations and phases than the first run's, on the same
+    settings."""
     reference = runs[0]
     steps = _steps(reference)
     for run in runs[1:]:
-        if run.settings != reference.settings:
-            differing = sorted(k for k in run.settings if run.settings[k] != reference.settings.get(k))
+        differing = sorted(
+            k for k in run.settings if k != "physics" and run.settings[k] != reference.settings.get(k)
+        )  # a physics apart is an environment apart (`environment_mixing`: --allow-mixed-environments)
+        if differing:
             raise ReportError(
                 f"{run.directory} and {reference.directory} were run with different settings "
                 f"({', '.join(differing)}); only runs with the same settings can be compared"

@@ -18,6 +18,7 @@ from smol_dsl.rundir.files import read_text
 from smol_dsl.rundir.layout import CONFIG_FILE, RunDirectoryError, leave_out
 from smol_dsl.seeds import check_seed
 from smol_dsl.tasks import task_spec
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS, physics_problem
 
 ISO_SIGMA = 0.005  # the paper's iso+line variation
 LINE_SIGMA = 0.05
@@ -43,6 +44,7 @@ class RunConfig:
     line_sigma: float = LINE_SIGMA
     num_init_cvt_samples: int = 50_000
     preset: str = "custom"
+    physics: str = DEFAULT_PHYSICS  # what simulates the task: "spring" (the paper's) or "mjx" (`tasks.physics`)
 
     def __post_init__(self) -> None:
         # only seeds 0 .. 2**32 - 1 give distinct runs (smol_dsl.seeds); a SeedError otherwise
@@ -128,11 +130,14 @@ def _is_of_type(value: Any, kind: type) -> bool:
 
 
 def _check_setting_values(path: Path, data: dict[str, Any], fix: str) -> None:
-    """The task is a known one, and every count at least 1."""
+    """The task and the physics are known ones, and every count at least 1."""
     try:
         task_spec(data["task"])
     except ValueError as error:  # "unknown task 'x'; the tasks are ..."
         raise RunDirectoryError(f"{path}: {error}; {fix}") from None
+    problem = physics_problem(data.get("physics", DEFAULT_PHYSICS))
+    if problem is not None:
+        raise RunDirectoryError(f"{path}: {problem}; {fix}")
     for name in CONFIG_AT_LEAST_ONE:
         if name in data and data[name] < 1:
             raise RunDirectoryError(f"{path}: {name} is {data[name]}, but must be at least 1; {fix}")

@@ -8,7 +8,8 @@ compiles for the host's instruction set). Every run directory records what it ra
 records in one table unless told to (`environment_differences` names what differs).
 
 Only what can change the numbers is compared (`COMPARED`): Python, the numerical
-packages, smol-dsl's version and commit, the devices and the processor. The operating
+packages, smol-dsl's version and commit, the physics (`spring` or `mjx`, and the package
+that implements it), the devices and the processor. The operating
 system and the host's name are recorded, not compared. A run's `layout` (how its scoring
 program laid the runs trained together out: `scoring_layout`) is compared when it resumes,
 not by a report: a sweep's run and `smol-dsl run` of that seed are the same algorithm in
@@ -29,6 +30,7 @@ from typing import Any
 from smol_dsl.rundir.commit import BUILD_COMMIT, checkout_commit
 from smol_dsl.rundir.files import read_text, write_text
 from smol_dsl.rundir.layout import ENVIRONMENT_FILE, RunDirectoryError, leave_out
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS, physics_record
 
 PACKAGES = ("jax", "jaxlib", "brax", "qdax", "mujoco", "numpy", "flax", "scipy")
 """The packages whose versions are recorded: those the physics and the archives run on."""
@@ -48,7 +50,7 @@ VECTOR_EXTENSIONS = (
     "sve",
 )
 """The processor's instruction-set extensions that XLA's CPU code generation uses."""
-COMPARED = ("python", "smol_dsl", "commit", "packages", "devices", "processor")
+COMPARED = ("python", "smol_dsl", "commit", "packages", "physics", "devices", "processor")
 """The entries of a record that can change a run's numbers: the ones a report compares."""
 LAYOUT = "layout"
 RESUME_COMPARED = (*COMPARED, LAYOUT)
@@ -64,15 +66,19 @@ def scoring_layout(runs: int, index: int, runs_per_step: int | None, channels: S
     return {"runs": runs, "index": index, "runs_per_step": runs_per_step, "channels": list(channels)}
 
 
-def describe_environment(devices: Sequence[Any], layout: dict[str, Any] | None = None) -> dict[str, Any]:
+def describe_environment(
+    devices: Sequence[Any], layout: dict[str, Any] | None = None, physics: str = DEFAULT_PHYSICS
+) -> dict[str, Any]:
     """What a run on `devices` (objects with `platform` and `device_kind`, as JAX's devices)
-    runs under, as environment.json records it, with its `layout` (`scoring_layout`) if given."""
+    simulated by `physics` runs under, as environment.json records it, with its `layout`
+    (`scoring_layout`) if given."""
     kinds = sorted({str(getattr(device, "device_kind", device.platform)) for device in devices})
     return {
         "python": platform.python_version(),
         "smol_dsl": _version("smol-dsl"),
         "commit": _commit(),
         "packages": {name: _version(name) for name in PACKAGES},
+        "physics": physics_record(physics),
         "devices": {"platform": devices[0].platform if devices else None, "kinds": kinds, "count": len(devices)},
         "processor": _processor(),
         "system": platform.platform(),
@@ -99,7 +105,7 @@ def _compared(recorded: dict[str, Any], current: dict[str, Any], compared: Seque
     for key in compared:
         if key == LAYOUT and (key not in recorded or key not in current):
             continue
-        before, after = recorded.get(key), current.get(key)
+        before, after = _entry(recorded, key), _entry(current, key)
         if isinstance(before, dict) and isinstance(after, dict):
             for inner in sorted(set(before) | set(after), key=lambda k: (k not in before, k)):
                 label = inner if key == "packages" else f"{key.replace('_', '-')} {inner}"
@@ -107,6 +113,15 @@ def _compared(recorded: dict[str, Any], current: dict[str, Any], compared: Seque
         else:
             pairs.append((key.replace("_", "-"), before, after))
     return pairs
+
+
+def _entry(record: dict[str, Any], key: str) -> Any:
+    """A record's entry; a record made before runs recorded their physics was made by a
+    spring run, with the brax it lists among its packages."""
+    if key == "physics" and key not in record and record:
+        brax = (record.get("packages") or {}).get("brax") if isinstance(record.get("packages"), dict) else None
+        return {"name": "spring", "package": "brax", "version": brax}
+    return record.get(key)
 
 
 def _shown(value: Any) -> str:

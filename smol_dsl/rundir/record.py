@@ -278,7 +278,7 @@ def _schedule_of(directory: Path, source: str, config: RunConfig) -> Schedule:
         first = str(parsed.located(source, str(path))).splitlines()[0]
         raise RunDirectoryError(f"{first}; {fix}")
     try:
-        task_spec(config.task).check_schedule(parsed)
+        task_spec(config.task).check_schedule(parsed, config.physics)
     except ScheduleError as error:
         first = str(error.located(source, str(path))).splitlines()[0]
         raise RunDirectoryError(

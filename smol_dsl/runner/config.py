@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from smol_dsl.errors import Setting, UserInputError
 from smol_dsl.rundir.presets import PRESETS, preset_config
 from smol_dsl.tasks import task_spec
+from smol_dsl.tasks.physics import physics_problem
 
 if TYPE_CHECKING:
     from smol_dsl.language.schedule import Schedule
@@ -36,8 +37,11 @@ LEAST_SETTINGS = {"evaluations": 1, "batch_size": 1, "num_phases": 1, "num_centr
 def check_config(config: RunConfig, schedule: Schedule) -> None:
     """Raise a ConfigError, naming the settings to change, for settings that cannot make a
     fair run, and a ScheduleError, located, for a channel naming actuators or links the task
-    lacks."""
-    task_spec(config.task).check_schedule(schedule)
+    lacks or may give a factor outside what the task takes on the config's physics."""
+    problem = physics_problem(config.physics)
+    if problem is not None:
+        raise ConfigError(Setting("physics") + f": {problem}")
+    task_spec(config.task).check_schedule(schedule, config.physics)
     for name, least in LEAST_SETTINGS.items():
         value = getattr(config, name)
         if value < least:

@@ -38,6 +38,7 @@ from smol_dsl.qdax.reevaluation import ReevaluationCounts, kept_in_place, reeval
 from smol_dsl.runner.layout import mesh_shape
 from smol_dsl.runner.map_elites import RunStep, empty_archive, make_map_elites
 from smol_dsl.tasks import make_task
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS
 
 if TYPE_CHECKING:
     from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
@@ -314,9 +315,11 @@ def _engine(
 
 
 @lru_cache(maxsize=8)
-def shared_task(name: str, episode_length: int, hidden_layer_sizes: tuple[int, ...]) -> Task:
+def shared_task(
+    name: str, episode_length: int, hidden_layer_sizes: tuple[int, ...], physics: str = DEFAULT_PHYSICS
+) -> Task:
     """One task per setting in a process (a task holds no seed: runs of any seed share it)."""
-    return make_task(name, episode_length=episode_length, hidden_layer_sizes=hidden_layer_sizes)
+    return make_task(name, episode_length=episode_length, hidden_layer_sizes=hidden_layer_sizes, physics=physics)
 
 
 def shared_engine(
@@ -331,7 +334,7 @@ def shared_engine(
     sweeps of the same task, settings and channels reuse its compilations; a task given by
     name is built here."""
     if isinstance(task, str):
-        task = shared_task(task, config.episode_length, tuple(config.hidden_layer_sizes))
+        task = shared_task(task, config.episode_length, tuple(config.hidden_layer_sizes), config.physics)
     return _engine(
         task,
         config.batch_size,

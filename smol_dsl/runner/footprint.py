@@ -299,7 +299,7 @@ def plan_footprint(
     """The footprint of `runs` runs of `config` on these devices (runs_per_step None: all of
     a device's runs at once), started from a process that holds `baseline_bytes` (None:
     this process, now) besides the programs it will compile."""
-    sizes = task_sizes(config.task, tuple(config.hidden_layer_sizes))
+    sizes = task_sizes(config.task, tuple(config.hidden_layer_sizes), config.physics)
     descriptors = sizes.descriptors
     # per cell: the policy, its fitness and lane (4 bytes each), its descriptor and centroid
     archive = config.num_centroids * (sizes.parameters + 2 + 2 * descriptors) * FLOAT_BYTES

@@ -40,12 +40,18 @@ def check_runs(task: Task | str, schedules: list[Schedule], config: RunConfig) -
     """What `smol-dsl run` and `sweep` refuse, refused for the Python API alike, before anything
     is created or compiled: a located ScheduleError for a schedule whose channels name parts
     the task's body lacks, a ConfigError (`check_config`) for settings that cannot make a fair
-    run, and one for a task that is not the config's (its name or episode length)."""
+    run, and one for a task that is not the config's (its name, physics or episode length)."""
     spec = task_spec(task) if isinstance(task, str) else task.spec
     if spec.name != config.task:
         raise ConfigError(
             f"the task is {spec.name} but the config's is {config.task}; make the config for {spec.name} "
             f"(preset_config({spec.name!r}, ...)) or pass task={config.task!r}"
+        )
+    if not isinstance(task, str) and task.physics != config.physics:
+        raise ConfigError(
+            f"the task is simulated on {task.physics} but the config's "
+            + Setting("physics")
+            + f" is {config.physics}; build the task with physics={config.physics!r}, or pass the task by name"
         )
     if not isinstance(task, str) and task.episode_length != config.episode_length:
         raise ConfigError(

@@ -145,7 +145,7 @@ def train_planned(
     channels = run_channels([run.schedule for run in runs])
     names = [channel.name for channel in channels]
     environments = [
-        describe_environment(plan.devices, scoring_layout(len(runs), r, plan.runs_per_step, names))
+        describe_environment(plan.devices, scoring_layout(len(runs), r, plan.runs_per_step, names), config.physics)
         for r in range(len(runs))
     ]
     with contextlib.ExitStack() as held:

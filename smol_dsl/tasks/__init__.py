@@ -40,13 +40,13 @@ class TaskSizes:
 
 
 @functools.lru_cache(maxsize=16)
-def task_sizes(name: str, hidden_layer_sizes: tuple[int, ...], backend: str = "spring") -> TaskSizes:
+def task_sizes(name: str, hidden_layer_sizes: tuple[int, ...], physics: str = "spring") -> TaskSizes:
     """The sizes of a task's policies and environment states, without compiling anything."""
     import jax
     import jax.numpy as jnp
     import numpy as np
 
-    task = make_task(name, episode_length=1, hidden_layer_sizes=tuple(hidden_layer_sizes), backend=backend)
+    task = make_task(name, episode_length=1, hidden_layer_sizes=tuple(hidden_layer_sizes), physics=physics)
     state = jax.eval_shape(task.env.reset, jax.random.key(0))
     observations = int(state.obs.shape[-1])  # Task.observation_size, from the reset traced here
     params = jax.eval_shape(task.policy.init, jax.random.key(0), jnp.zeros((observations,)))

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from smol_dsl.tasks.base import Task, last_valid, make_policy
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS, check_physics
 from smol_dsl.tasks.quiet import brax_environment
 
 if TYPE_CHECKING:
@@ -26,10 +27,10 @@ def make(
     *,
     episode_length: int = 100,
     hidden_layer_sizes: tuple[int, ...] = (256, 256),
-    backend: str = "spring",
+    physics: str = DEFAULT_PHYSICS,
 ) -> Task:
     """The ant_omni task."""
-    env = brax_environment(spec.environment, backend=backend, debug=False)
+    env = brax_environment(spec.environment, backend=check_physics(physics).backend, debug=False)
     torso = env.sys.link_names.index("torso")
     low = jnp.asarray(spec.descriptor_low)
     high = jnp.asarray(spec.descriptor_high)
@@ -48,4 +49,5 @@ def make(
         state_descriptor=xy_position,
         reward=energy_reward,
         final_descriptor=last_valid,
+        physics=physics,
     )

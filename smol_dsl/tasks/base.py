@@ -26,8 +26,9 @@ import jax
 import jax.numpy as jnp
 
 from smol_dsl.language.channels import GEAR, Channel
-from smol_dsl.tasks.body import Modulate, Modulation, check_channels, modulation
+from smol_dsl.tasks.body import Modulate, Modulation, check_channels, modulation_for
 from smol_dsl.tasks.compiling import compiler_options
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS, check_physics
 from smol_dsl.tasks.quiet import import_brax
 
 import_brax()  # before Brax's modules, so that MJX's Warp lines are not printed (see quiet.py)
@@ -75,11 +76,13 @@ class Task:
     """A QD task: environment, policy network, descriptor space, and scoring in a body.
 
     Built from its registry spec (`smol_dsl.tasks.make_task`), which holds its name,
-    descriptor box, reward offset and anatomy. A body is a (C,) array of factors for
-    `channels`; `modulation(anatomy, channels)` makes the hook that turns it into `sys`
-    (`modulate`), so a task of your own changes its body by its own `modulation`, for any
-    channels. The episode start is not part of the task: it comes from a run's seed
-    (`episode_start`), so every way of starting a run starts alike.
+    descriptor box, reward offset and anatomy. `physics` names what simulates it (`spring`
+    or `mjx`, `tasks.physics`; the env is built with that Brax backend). A body is a (C,)
+    array of factors for `channels`; `modulation(anatomy, channels)` makes the hook that
+    turns it into `sys` (`modulate`): by default the physics' own (`body.modulation_for`),
+    so a task of your own changes its body by its own `modulation`, for any channels. The
+    episode start is not part of the task: it comes from a run's seed (`episode_start`), so
+    every way of starting a run starts alike.
     """
 
     spec: TaskSpec
@@ -90,9 +93,11 @@ class Task:
     reward: Callable[[State], jax.Array]  # per-step fitness reward of a (post-step) state
     final_descriptor: Callable[[jax.Array, jax.Array], jax.Array]  # (per-step, valid mask)
     channels: tuple[Channel, ...] = (GEAR,)  # what the body's factors scale, in order
-    modulation: Modulation = modulation  # (anatomy, channels) -> the hook `modulate`
+    modulation: Modulation | None = None  # (anatomy, channels) -> the hook `modulate`; None: the physics' own
+    physics: str = DEFAULT_PHYSICS  # what simulates the env: "spring" or "mjx" (`tasks.physics`)
 
     def __post_init__(self) -> None:
+        check_physics(self.physics)
         object.__setattr__(self, "channels", check_channels(self.spec.anatomy, self.channels))
 
     @property
@@ -135,7 +140,7 @@ class Task:
     @functools.cached_property
     def modulate(self) -> Modulate:
         """The hook that turns a body of this task's channels into the `sys` a rollout runs in."""
-        return self.modulation(self.spec.anatomy, self.channels)
+        return (self.modulation or modulation_for(self.physics))(self.spec.anatomy, self.channels)
 
     def with_channels(self, channels: Sequence[Channel | str]) -> Task:
         """This task with a body under `channels` (Channel or names like "gear[left_leg]"):

@@ -1,9 +1,11 @@
 """A body: a (C,) array of factors, one per scheduled channel, and the `sys` it makes.
 
 Everywhere below the schedule a body is that array, for a tuple of channels; plain gear
-alone (the paper's alpha) is the one-channel case `(GEAR,)`. `modulation(anatomy, channels)`
-is the default hook that turns a body into Brax's `System` (`Task.modulate`): it multiplies
-the parameters of `sys` that the `spring` pipeline reads:
+alone (the paper's alpha) is the one-channel case `(GEAR,)`. A `Modulation` makes the hook
+that turns a body into Brax's `System` (`Task.modulate`); each physics has its default
+(`modulation_for`): MJX's is `tasks.mjx_body.mjx_modulation`, and spring's,
+`modulation(anatomy, channels)`, multiplies the parameters of `sys` that the `spring`
+pipeline reads:
 
 - gear: `sys.actuator.gear` (`actuator.to_tau` multiplies the actuator's force, bias
   included, by it);
@@ -13,15 +15,11 @@ the parameters of `sys` that the `spring` pipeline reads:
   (real masses, unit inertia), halfcheetah's 0.3 and 0.8, hopper's and the ant's 1 and 1
   (every link weighs 1, whatever `sys` says). So the simulated values are written into
   `sys` with both scales 0, times the factor: on every task, a factor k makes the simulated
-  body k times as heavy and as hard to turn (MJX's `body_mass` and `body_inertia`, body =
-  link + 1, follow). The pipeline caches the masses in its state at reset: `Task.rollout`
-  gives the episode start the changed body's (`base.start_in_body`);
-- friction: `sys.geom_friction` of every geom (and `pair_friction` of explicit pairs). MJX's
-  collision (mujoco/mjx/_src/collision_driver.py) gives a contact the larger of its two
-  geoms' coefficients, or the priority geom's, so scaling every geom by k > 0 scales every
-  contact's by k exactly (rounding is monotonic); spring reads the sliding coefficient;
-- gravity: `sys.gravity`, which the spring pipeline reads, and MJX's `sys.opt.gravity`,
-  kept equal to it.
+  body k times as heavy and as hard to turn. The pipeline caches the masses in its state at
+  reset: `Task.rollout` gives the episode start the changed body's (`base.start_in_body`);
+- friction: `sys.geom_friction` of every geom (and `pair_friction` of explicit pairs);
+  spring's collision reads the sliding coefficient of a contact's geoms;
+- gravity: `sys.gravity`, which the spring pipeline reads.
 
 Factors of channels of the same kind multiply: an actuator under `gear` and
 `gear[left_leg]` gets their product. Only multiplications (and selecting a factor per
@@ -39,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from smol_dsl.language.channels import CHANNEL_KINDS, Channel
+from smol_dsl.tasks.physics import check_physics
 
 if TYPE_CHECKING:
     from brax.base import System
@@ -129,7 +128,7 @@ def modulation(anatomy: Anatomy | None, channels: Sequence[Channel]) -> Modulate
             sys = sys.replace(geom_friction=sys.geom_friction * friction, pair_friction=sys.pair_friction * friction)
         gravity = kind_factor(anatomy, channels, body, "gravity", 1)
         if gravity is not None:
-            sys = sys.replace(gravity=sys.gravity * gravity, opt=sys.opt.replace(gravity=sys.opt.gravity * gravity))
+            sys = sys.replace(gravity=sys.gravity * gravity)
         return sys
 
     return modulate
@@ -144,13 +143,16 @@ def _scale_mass(sys: System, factor: jax.Array) -> System:
     diagonal = jnp.diagonal(inertia.i, axis1=-2, axis2=-1) ** (1 - sys.spring_inertia_scale) * factor[:, None]
     i = diagonal[..., None] * jnp.eye(3, dtype=diagonal.dtype)  # the pipeline reads the diagonal only
     zero = jnp.zeros((), jnp.result_type(sys.spring_mass_scale))
-    changes = {
-        "link": sys.link.replace(inertia=inertia.replace(mass=mass, i=i)),
-        "spring_mass_scale": zero,
-        "spring_inertia_scale": zero,
-    }
-    if getattr(sys, "body_mass", None) is not None:
-        changes["body_mass"] = jnp.concatenate([sys.body_mass[:1], mass])  # body 0 is the world
-    if getattr(sys, "body_inertia", None) is not None:
-        changes["body_inertia"] = jnp.concatenate([sys.body_inertia[:1], diagonal])
-    return sys.replace(**changes)
+    link = sys.link.replace(inertia=inertia.replace(mass=mass, i=i))
+    return sys.replace(link=link, spring_mass_scale=zero, spring_inertia_scale=zero)
+
+
+def modulation_for(physics: str) -> Modulation:
+    """The default `Modulation` of a physics (`tasks.physics`): `modulation` for spring,
+    `tasks.mjx_body.mjx_modulation` for MJX."""
+    if physics == "mjx":
+        from smol_dsl.tasks.mjx_body import mjx_modulation
+
+        return mjx_modulation
+    check_physics(physics)
+    return modulation

@@ -29,16 +29,18 @@ from smol_dsl.tasks.registry import TaskSpec
 DUTY_FACTORS = ((0.0, 0.0), (1.0, 1.0))  # two feet, each in contact a proportion of the steps
 
 
-def measured(episode_length: int, **finite: tuple[float, float]) -> dict[str, FactorRange]:
-    """Each kind's stated range: the factors (low, high) at which every rollout of
+def measured(episode_length: int, **finite: tuple[float, float]) -> dict[str, dict[str, FactorRange]]:
+    """Each kind's stated range on spring: the factors (low, high) at which every rollout of
     `benchmarks/factor_ranges.py` stayed finite, within float32's safe range."""
     return {
-        kind: FactorRange(
-            max(low, SAFE_MIN),
-            min(high, SAFE_MAX),
-            f"where random policies' {episode_length}-step rollouts stay finite, benchmarks/factor_ranges.py",
-        )
-        for kind, (low, high) in finite.items()
+        "spring": {
+            kind: FactorRange(
+                max(low, SAFE_MIN),
+                min(high, SAFE_MAX),
+                f"where random policies' {episode_length}-step rollouts stay finite, benchmarks/factor_ranges.py",
+            )
+            for kind, (low, high) in finite.items()
+        }
     }
 
 

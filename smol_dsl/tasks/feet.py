@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from smol_dsl.tasks.base import Task, make_policy, mean_over_valid
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS, check_physics
 from smol_dsl.tasks.quiet import brax_environment
 
 if TYPE_CHECKING:
@@ -30,11 +31,11 @@ def make(
     *,
     episode_length: int = 1000,
     hidden_layer_sizes: tuple[int, ...] = (64, 64),
-    backend: str = "spring",
+    physics: str = DEFAULT_PHYSICS,
 ) -> Task:
     """The task of `spec` (walker2d, halfcheetah, hopper, ant_uni): its Brax env with
     contacts recorded."""
-    env = brax_environment(spec.environment, backend=backend, debug=True)
+    env = brax_environment(spec.environment, backend=check_physics(physics).backend, debug=True)
     feet = spec.details["feet"]
     links = spec.anatomy.links if spec.anatomy is not None else env.sys.link_names
     feet_idx = jnp.asarray([i for i, name in enumerate(links) if name in feet])
@@ -54,4 +55,5 @@ def make(
         state_descriptor=feet_contact,
         reward=lambda state: state.reward,
         final_descriptor=mean_over_valid,
+        physics=physics,
     )

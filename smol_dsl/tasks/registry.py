@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS, check_physics
 from smol_dsl.tasks.ranges import body_problem, check_resolved_factors
 
 if TYPE_CHECKING:
@@ -41,7 +42,7 @@ class TaskSpec:
     name: str
     help: str
     environment: str  # the Brax environment's name
-    factory: str | Callable[..., Task]  # (spec, *, episode_length, hidden_layer_sizes, backend) -> Task
+    factory: str | Callable[..., Task]  # (spec, *, episode_length, hidden_layer_sizes, physics) -> Task
     descriptor_low: tuple[float, ...]
     descriptor_high: tuple[float, ...]
     reward_offset: float  # per step, keeps rewards positive: the QD score adds offset * episode_length per cell
@@ -49,9 +50,10 @@ class TaskSpec:
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     details: Mapping[str, Any] = field(default_factory=dict)  # for the factory, e.g. the feet's link names
     anatomy: Anatomy | None = None  # the actuators and links a schedule's channels can name
-    factor_ranges: Mapping[str, FactorRange] = field(default_factory=dict)
-    """Per kind of channel, the resolved factors the task's physics takes (`tasks.ranges`;
-    float32's safe range for a kind it leaves out)."""
+    factor_ranges: Mapping[str, Mapping[str, FactorRange]] = field(default_factory=dict)
+    """Per physics (`tasks.physics`), per kind of channel, the resolved factors the task's
+    physics takes (`tasks.ranges`; float32's safe range for a kind or physics it leaves
+    out): `ranges(physics)`."""
     observation_size: int | None = None
     """The length of an observation, where known without building the task (archives'
     policies are checked against it)."""
@@ -70,27 +72,33 @@ class TaskSpec:
     def descriptor_size(self) -> int:
         return len(self.descriptor_low)
 
-    def check_schedule(self, schedule: Schedule) -> None:
+    def ranges(self, physics: str = DEFAULT_PHYSICS) -> Mapping[str, FactorRange]:
+        """Per kind of channel, the factors the task takes on `physics` (a ValueError for an
+        unknown physics)."""
+        check_physics(physics)
+        return self.factor_ranges.get(physics, {})
+
+    def check_schedule(self, schedule: Schedule, physics: str = DEFAULT_PHYSICS) -> None:
         """Refuse, with a located ScheduleError, a schedule whose channels name actuators or
         links this task's body lacks (or any, for a task without an anatomy), or under which
         an actuator's, link's or the whole body's factor (the product of the channels that
-        reach it) may leave `factor_ranges`."""
+        reach it) may leave what the task takes on `physics` (`ranges`)."""
         anatomy = self.anatomy
         if anatomy is None:
             schedule.check_targets(None, self.name)
         else:
             schedule.check_targets(anatomy.targets(), self.name, anatomy.listing())
-        check_resolved_factors(schedule, anatomy, self.factor_ranges, self.name)
+        check_resolved_factors(schedule, anatomy, self.ranges(physics), self.name)
 
-    def body_problem(self, body: Mapping[Channel, float]) -> str | None:
+    def body_problem(self, body: Mapping[Channel, float], physics: str = DEFAULT_PHYSICS) -> str | None:
         """What is wrong with a body of this task (a factor per channel), in words, or None:
-        a factor that is not finite and above 0, or a part's resolved factor outside
-        `factor_ranges` (`tasks.ranges.body_problem`)."""
-        return body_problem(body, self.anatomy, self.factor_ranges, self.name)
+        a factor that is not finite and above 0, or a part's resolved factor outside what the
+        task takes on `physics` (`ranges`; `tasks.ranges.body_problem`)."""
+        return body_problem(body, self.anatomy, self.ranges(physics), self.name)
 
     def make(self, **options: Any) -> Task:
         """Build the task (imports JAX and Brax); options (episode_length,
-        hidden_layer_sizes, backend) go to the factory."""
+        hidden_layer_sizes, physics) go to the factory."""
         factory = self.factory
         if isinstance(factory, str):
             module, _, function = factory.partition(":")

@@ -1,0 +1,68 @@
+"""The physics a task simulates its body with: Brax's `spring` (the paper's) or MuJoCo's MJX.
+
+A physics is a name a run records (config.json, environment.json) and a Brax backend the
+task's environment is built with. Both simulate the same MuJoCo model (Brax loads the
+environment's MJCF for either); they differ in how: `spring` is Brax's own impulse-based
+pipeline, which Brax no longer maintains; `mjx` is MuJoCo's soft-constraint dynamics in JAX
+(MuJoCo XLA, shipped with `mujoco`), which reads the model's fields as MuJoCo does. A body
+is written into the fields its physics reads (`tasks.body` for spring, `tasks.mjx_body` for
+MJX).
+
+Importing this module imports neither JAX nor Brax.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import metadata
+
+
+@dataclass(frozen=True)
+class Physics:
+    """A physics a task can be simulated with: its name, the Brax backend that runs it, the
+    package that implements it (recorded with its version), and a line for help texts."""
+
+    name: str
+    backend: str
+    package: str
+    help: str
+
+
+PHYSICS: dict[str, Physics] = {
+    physics.name: physics
+    for physics in (
+        Physics("spring", "spring", "brax", "Brax's spring pipeline, as in the paper (the default)"),
+        Physics("mjx", "mjx", "mujoco-mjx", "MuJoCo's MJX (MuJoCo XLA) in JAX, the physics MuJoCo maintains"),
+    )
+}
+PHYSICS_NAMES = tuple(PHYSICS)
+DEFAULT_PHYSICS = "spring"
+
+
+def physics_problem(name: object) -> str | None:
+    """What is wrong with a physics name, in words (with the names there are), or None."""
+    if isinstance(name, str) and name in PHYSICS:
+        return None
+    return f"unknown physics {name!r}; the physics are {', '.join(PHYSICS_NAMES)} ({DEFAULT_PHYSICS} by default)"
+
+
+def check_physics(name: object) -> Physics:
+    """The physics of a name; a ValueError naming the physics there are otherwise."""
+    problem = physics_problem(name)
+    if problem is not None:
+        raise ValueError(problem)
+    return PHYSICS[name]  # type: ignore[index]
+
+
+def physics_record(name: str) -> dict[str, str | None]:
+    """What environment.json records of a run's physics: its name, the package that
+    implements it and that package's installed version, and how MJX runs it (MJX-JAX)."""
+    physics = check_physics(name)
+    try:
+        version: str | None = metadata.version(physics.package)
+    except metadata.PackageNotFoundError:
+        version = None
+    record: dict[str, str | None] = {"name": physics.name, "package": physics.package, "version": version}
+    if physics.name == "mjx":
+        record["implementation"] = "jax"  # MJX's `impl`: smol-dsl builds its models for MJX-JAX
+    return record
