@@ -71,6 +71,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help=f"the gait cache's bound in MB: past it, the least recently used gaits are removed (default "
         f"{DEFAULT_CACHE_MB}; a gait of the quick preset is about 150 kB)",
     )
+    explore.add_argument(
+        "--allow-mixed-environments",
+        action="store_true",
+        help="show runs simulated on different physics (--physics) together, each labelled with its own; "
+        "refused otherwise, since their archives are not comparable side by side",
+    )
     explore.set_defaults(handle=explore_runs)
 
 
@@ -116,7 +122,13 @@ def explore_runs(args: argparse.Namespace) -> int:
     try:
         cache = gait_cache(args)
         use_cpu_cores_as_devices()  # as the runs trained: their scoring programs (see `smol-dsl render`)
-        explorer = Explorer(args.paths, replay=replay_elites, cache=cache, cache_bytes=args.cache_size * 10**6)
+        explorer = Explorer(
+            args.paths,
+            replay=replay_elites,
+            cache=cache,
+            cache_bytes=args.cache_size * 10**6,
+            allow_mixed_environments=args.allow_mixed_environments,
+        )
     except BaseException:
         sock.close()
         raise

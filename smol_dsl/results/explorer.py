@@ -40,6 +40,7 @@ from smol_dsl.rundir import RunDirectoryError, RunRecord, load_archive, read_run
 from smol_dsl.rundir.layout import SNAPSHOTS_FILE
 from smol_dsl.rundir.snapshots import SnapshotsError, read_snapshots
 from smol_dsl.tasks import descriptor_bounds, task_spec
+from smol_dsl.tasks.physics import DEFAULT_PHYSICS
 
 if TYPE_CHECKING:
     from smol_dsl.results.gaits import ReplayElites
@@ -74,7 +75,9 @@ class ExploredRun:
     @property
     def label(self) -> str:
         median = f", the median of {self.median_of}" if self.median_of else ""
-        return f"{self.record.schedule}, seed {self.record.seed} ({self.record.directory.name}){median}"
+        physics = self.record.config.physics
+        on = f", on {physics}" if physics != DEFAULT_PHYSICS else ""
+        return f"{self.record.schedule}, seed {self.record.seed}{on} ({self.record.directory.name}){median}"
 
 
 class Explorer:
@@ -87,6 +90,7 @@ class Explorer:
         replay: ReplayElites | None,
         cache: Path,
         cache_bytes: int = DEFAULT_CACHE_MB * 10**6,
+        allow_mixed_environments: bool = False,
     ) -> None:
         directories = find_run_directories(paths)
         runs, problems = [], []
@@ -104,6 +108,8 @@ class Explorer:
                 f"no finished runs in {', '.join(str(p) for p in paths)}{found}; train some with `smol-dsl run` or "
                 "`smol-dsl sweep`"
             )
+        if not allow_mixed_environments:
+            _check_one_physics(runs)
         self.runs = _mark_medians(
             sorted(runs, key=lambda r: (r.record.task, r.record.schedule, r.record.seed, str(r.record.directory)))
         )
@@ -122,7 +128,8 @@ class Explorer:
     def run_list(self) -> list[dict[str, Any]]:
         return [
             {"id": number, "label": run.label, "task": run.record.task, "schedule": run.record.schedule,
-             "seed": run.record.seed, "directory": run.record.directory.name, "phases": run.record.config.num_phases,
+             "seed": run.record.seed, "physics": run.record.config.physics, "directory": run.record.directory.name,
+             "phases": run.record.config.num_phases,
              "snapshots": len(run.snapshots), "median": bool(run.median_of)}
             for number, run in enumerate(self.runs)
         ]  # fmt: skip
@@ -298,14 +305,28 @@ def _snapshots_of(record: RunRecord) -> list[Any]:
     return snapshots
 
 
-def _mark_medians(runs: list[ExploredRun]) -> list[ExploredRun]:
-    """`runs` with the run of each task's schedule (of two runs or more) that the report shows
-    marked: the median final score by the task's default metric (`median_run`)."""
-    groups: dict[tuple[str, str], list[ExploredRun]] = {}
+def _check_one_physics(runs: list[ExploredRun]) -> None:
+    """Refuse runs simulated on different physics (a ReportError naming a run of each): their
+    archives are not comparable side by side."""
+    first: dict[str, Path] = {}
     for run in runs:
-        groups.setdefault((run.record.task, run.record.schedule), []).append(run)
+        first.setdefault(run.record.config.physics, run.record.directory)
+    if len(first) > 1:
+        named = "; ".join(f"{physics}: {directory}" for physics, directory in first.items())
+        raise ReportError(
+            f"the runs were simulated on different physics ({named}), so their archives are not comparable side by "
+            "side; explore each physics' runs apart, or pass --allow-mixed-environments to show them together"
+        )
+
+
+def _mark_medians(runs: list[ExploredRun]) -> list[ExploredRun]:
+    """`runs` with the run of each task's schedule on each physics (of two runs or more) that
+    the report shows marked: the median final score by the task's default metric (`median_run`)."""
+    groups: dict[tuple[str, str, str], list[ExploredRun]] = {}
+    for run in runs:
+        groups.setdefault((run.record.task, run.record.config.physics, run.record.schedule), []).append(run)
     medians: dict[Path, str] = {}
-    for (task, schedule), group in groups.items():
+    for (task, _, schedule), group in groups.items():
         if len(group) >= 2:
             metric = task_spec(task).default_metric
             chosen = median_run([run.record for run in group], metric)

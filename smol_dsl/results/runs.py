@@ -306,7 +306,8 @@ def runs_described(groups: Mapping[str, Sequence[RunRecord]]) -> list[tuple[str,
         ),
         (
             "settings",
-            f"preset {config.preset}; {config.num_centroids:,} cells ({config.num_init_cvt_samples:,} CVT samples); "
+            f"physics {config.physics}; preset {config.preset}; {config.num_centroids:,} cells "
+            f"({config.num_init_cvt_samples:,} CVT samples); "
             f"policy hidden layers {list(config.hidden_layer_sizes)}; iso sigma {config.iso_sigma:g}, line sigma "
             f"{config.line_sigma:g}",
         ),

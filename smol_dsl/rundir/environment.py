@@ -107,7 +107,7 @@ def _compared(recorded: dict[str, Any], current: dict[str, Any], compared: Seque
             continue
         before, after = _entry(recorded, key), _entry(current, key)
         if isinstance(before, dict) and isinstance(after, dict):
-            for inner in sorted(set(before) | set(after), key=lambda k: (k not in before, k)):
+            for inner in sorted(set(before) | set(after), key=lambda k: (k not in before, k != "name", k)):
                 label = inner if key == "packages" else f"{key.replace('_', '-')} {inner}"
                 pairs.append((label, before.get(inner), after.get(inner)))
         else:

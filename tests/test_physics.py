@@ -1,0 +1,242 @@
+"""The physics a task is simulated with (`--physics spring|mjx`): the body written into the
+fields MJX reads, each channel changing what it should there, MuJoCo's own inverse weights
+for a heavier body, the feet-contact descriptor from MJX's contacts, and physics as part of a
+run's identity (config.json, environment.json; mixing refused by report, explore and resume)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from small_runs import cli
+from synthetic_runs import snapshot, write_run
+
+from smol_dsl.results.runs import ReportError, load_runs
+from smol_dsl.rundir import describe_environment, environment_differences, read_config
+from smol_dsl.rundir.environment import environment_text
+from smol_dsl.rundir.layout import ENVIRONMENT_FILE, LOCK_FILE, RunDirectoryError
+from smol_dsl.runner import preset_config
+from smol_dsl.tasks import make_task
+from smol_dsl.tasks.physics import PHYSICS_NAMES, check_physics, physics_record
+
+CHANNELS = ["gear", "mass", "friction", "gravity"]
+
+
+# -- names, settings and records (no physics runs) -------------------------------------------
+
+
+def test_an_unknown_physics_is_refused_with_the_physics_there_are():
+    with pytest.raises(
+        ValueError, match=r"unknown physics 'bullet'; the physics are spring, mjx \(spring by default\)"
+    ):
+        check_physics("bullet")
+    with pytest.raises(ValueError, match="unknown physics 'bullet'"):
+        make_task("walker2d", physics="bullet")
+    assert PHYSICS_NAMES == ("spring", "mjx")
+
+
+def test_a_config_records_its_physics_and_one_without_it_is_springs(tmp_path):
+    config = preset_config("walker2d", physics="mjx")
+    path = tmp_path / "config.json"
+    path.write_text(config.to_json())
+    assert json.loads(path.read_text())["physics"] == "mjx" and read_config(path) == config
+    data = json.loads(path.read_text())
+    del data["physics"]  # a run directory from before physics could be chosen
+    path.write_text(json.dumps(data))
+    assert read_config(path).physics == "spring"
+    path.write_text(json.dumps({**data, "physics": "bullet"}))
+    with pytest.raises(RunDirectoryError, match="unknown physics 'bullet'"):
+        read_config(path)
+
+
+def test_environment_json_records_the_physics_and_compares_it():
+    spring, mjx = describe_environment([], physics="spring"), describe_environment([], physics="mjx")
+    assert (
+        mjx["physics"]
+        == physics_record("mjx")
+        == {
+            "name": "mjx",
+            "package": "mujoco-mjx",
+            "version": mjx["physics"]["version"],
+            "implementation": "jax",
+        }
+    )
+    assert spring["physics"]["package"] == "brax" and spring["physics"]["version"] == spring["packages"]["brax"]
+    differences = environment_differences(spring, mjx)
+    assert "physics name spring -> mjx" in differences and "physics package brax -> mujoco-mjx" in differences
+    recorded_before_physics = {key: value for key, value in spring.items() if key != "physics"}
+    assert environment_differences(recorded_before_physics, spring) == []  # such a run was spring's
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "walker2d", "human", "--physics", "bullet"], "invalid choice: 'bullet'"),
+        (["check", "smol", "--physics", "mjx"], "--physics mjx needs --task"),
+    ],
+)
+def test_the_command_line_refuses_a_bad_physics(tmp_path, monkeypatch, capsys, args, message):
+    monkeypatch.chdir(tmp_path)
+    code, err = cli(args, capsys)
+    assert code == 2 and message in err and not list(tmp_path.iterdir())
+
+
+def test_check_proves_a_schedule_against_the_ranges_of_the_physics(capsys):
+    from smol_dsl.cli import main
+
+    assert main(["check", "smol", "--task", "walker2d", "--physics", "mjx"]) == 0
+    out = capsys.readouterr().out
+    assert "walker2d on mjx takes these factors" in out and "smol.sched: ok" in out
+
+
+def _runs_on_two_physics(root: Path, library: dict) -> list[Path]:
+    """Two finished synthetic walker2d runs of one schedule, seeds 0 and 1: spring and MJX."""
+    runs = []
+    for seed, physics in enumerate(("spring", "mjx")):
+        run = write_run(root / f"run-{physics}", library, "smol", seed, {"max_fitness": 10.0 + seed}, physics=physics)
+        (run / ENVIRONMENT_FILE).write_text(environment_text(describe_environment([], physics=physics)))
+        runs.append(run)
+    return runs
+
+
+def test_report_and_robustness_refuse_runs_of_two_physics_unless_allowed(tmp_path, library):
+    _runs_on_two_physics(tmp_path, library)
+    with pytest.raises(ReportError, match=r"not all produced under one environment: .*\(physics name mjx -> spring; "):
+        load_runs([tmp_path])
+    groups = load_runs([tmp_path], allow_mixed_environments=True)
+    assert sorted(run.config.physics for run in groups["SMOL"]) == ["mjx", "spring"]
+
+
+def test_explore_refuses_runs_of_two_physics_unless_allowed(tmp_path, library):
+    from smol_dsl.results.explorer import Explorer
+
+    _runs_on_two_physics(tmp_path, library)
+    with pytest.raises(
+        ReportError, match=r"simulated on different physics \(mjx: .*run-mjx; spring: .*\).*--allow-mixed"
+    ):
+        Explorer([tmp_path], replay=None, cache=tmp_path / "cache")
+    explorer = Explorer([tmp_path], replay=None, cache=tmp_path / "cache", allow_mixed_environments=True)
+    try:
+        labels = [run["label"] for run in explorer.run_list()]
+        assert [run["physics"] for run in explorer.run_list()] == ["spring", "mjx"]  # in seed order
+        assert "seed 1, on mjx (run-mjx)" in labels[1] and "seed 0 (run-spring)" in labels[0]
+    finally:
+        explorer.close()
+
+
+def test_a_run_is_not_resumed_on_another_physics(tmp_path, monkeypatch, capsys, library):
+    monkeypatch.chdir(tmp_path)
+    write_run(tmp_path / "run", library, "human", 0, {"max_fitness": 1.0}, finished=False)
+    before = snapshot(tmp_path / "run")
+    flags = ["--evals", "208", "--batch-size", "16", "--phases", "10", "--centroids", "32", "--episode-length", "20"]
+    code, err = cli(["run", "walker2d", "human", *flags, "--out", "run", "--resume", "--physics", "mjx"], capsys)
+    assert code == 2 and "--physics" in err and "spring" in err, err
+    after = snapshot(tmp_path / "run")
+    assert {name: data for name, data in after.items() if name != LOCK_FILE} == before
+
+
+# -- MJX's fields, and what each channel changes (real MJX physics) ---------------------------
+
+
+@pytest.fixture(scope="module")
+def mjx_walker():
+    return make_task("walker2d", episode_length=20, physics="mjx")
+
+
+@pytest.mark.slow
+def test_a_body_of_ones_on_mjx_is_the_model_itself_bit_for_bit(mjx_walker):
+    """The modulated model equals the model, field by field, and so does a rollout: the task
+    in a body of ones, and the same task with a hook that leaves the model alone."""
+    import dataclasses
+
+    import jax
+    import jax.numpy as jnp
+
+    task = mjx_walker.with_channels(CHANNELS)
+    sys, changed = task.env.sys, task.modulate(task.env.sys, jnp.ones(4))
+    for field in ("actuator_gear", "body_mass", "body_inertia", "body_invweight0", "dof_invweight0"):
+        np.testing.assert_array_equal(getattr(changed, field), getattr(sys, field), err_msg=field)
+    np.testing.assert_array_equal(changed.geom_friction, sys.geom_friction)
+    np.testing.assert_array_equal(changed.opt.gravity, sys.opt.gravity)
+    unscheduled = dataclasses.replace(task, modulation=lambda anatomy, channels: lambda sys, body: sys)
+    params = task.init_policies(jax.random.key(1), 4)
+    start = task.episode_start(0)
+    ours = task.scoring_fn()(params, jnp.ones(4), start)
+    theirs = unscheduled.scoring_fn()(params, jnp.ones(4), start)
+    for a, b in zip(ours, theirs, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(np.isfinite(ours[0])) and np.ptp(np.asarray(ours[0])) > 0
+
+
+@pytest.mark.slow
+def test_each_channel_changes_what_mjx_reads(mjx_walker):
+    """One step of the same action from the same start, in bodies that differ in one channel:
+    gear 2 doubles every joint's actuator force; friction 0.5 halves every contact's
+    coefficients; gravity 2 adds one g to the falling torso's acceleration; mass 2 slows the
+    joints, and mass 2 with gear 2 nearly restores them (only the joints' armature and
+    damping, which do not scale, keep it from exact)."""
+    import jax
+    import jax.numpy as jnp
+
+    from smol_dsl.tasks.base import with_sys
+
+    task = mjx_walker.with_channels(CHANNELS)
+    start = task.episode_start(0)
+    action = jnp.full((task.env.action_size,), 0.5)
+
+    @jax.jit
+    def step(body):
+        state = with_sys(task.env, task.modulate(task.env.sys, body)).step(start, action).pipeline_state
+        return state.qfrc_actuator, state.qacc, state.contact.friction
+
+    def at(gear=1.0, mass=1.0, friction=1.0, gravity=1.0):
+        return [np.asarray(x) for x in step(jnp.asarray([gear, mass, friction, gravity], jnp.float32))]
+
+    base = at()
+    np.testing.assert_array_equal(at(gear=2)[0], 2 * base[0])
+    np.testing.assert_array_equal(at(friction=0.5)[2], 0.5 * base[2])
+    rootz = 1  # walker2d's joints: rootx, rootz, rooty, then the legs'
+    gravity = float(-np.asarray(task.env.sys.opt.gravity)[2])
+    assert at(gravity=2)[1][rootz] == pytest.approx(base[1][rootz] - gravity, rel=1e-4)
+    heavy, balanced = at(mass=2)[1][3:], at(mass=2, gear=2)[1][3:]
+    assert np.linalg.norm(balanced - base[1][3:]) < 0.25 * np.linalg.norm(heavy - base[1][3:])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("environment", ["walker2d", "ant"])
+def test_the_inverse_weights_of_a_heavier_body_are_mujocos(environment):
+    """MJX reads the inverse weights MuJoCo derives when it compiles a model; for a body whose
+    links are each scaled by their own factor they are MuJoCo's own (`mj_setConst` on the
+    model with those masses and inertias), to float32 rounding."""
+    import brax
+    import jax.numpy as jnp
+    import mujoco
+    from brax.io import mjcf
+
+    from smol_dsl.tasks.mjx_body import scale_mass
+    from smol_dsl.tasks.quiet import brax_environment
+
+    sys = brax_environment(environment, backend="mjx").sys
+    model = mjcf.load_mjmodel(os.path.join(os.path.dirname(brax.__file__), "envs", "assets", f"{environment}.xml"))
+    factors = np.random.default_rng(0).uniform(0.3, 3.0, model.nbody - 1)
+    model.body_mass[1:] *= factors
+    model.body_inertia[1:] *= factors[:, None]
+    mujoco.mj_setConst(model, mujoco.MjData(model))
+    ours = scale_mass(sys, jnp.asarray(factors, jnp.float32))
+    np.testing.assert_allclose(ours.body_invweight0, model.body_invweight0, rtol=2e-5)
+    np.testing.assert_allclose(ours.dof_invweight0, model.dof_invweight0, rtol=2e-5)
+    assert not np.allclose(ours.dof_invweight0, sys.dof_invweight0, rtol=0.05)  # they did change
+
+
+@pytest.mark.slow
+def test_the_feet_touch_the_same_ground_on_both_physics(mjx_walker):
+    """The feet-contact descriptor reads each physics' contacts alike: at the episode start
+    both list the same pairs (the floor with the torso and each foot) at the same distances."""
+    spring = make_task("walker2d", episode_length=20)
+    ours, theirs = mjx_walker.episode_start(0).pipeline_state, spring.episode_start(0).pipeline_state
+    np.testing.assert_array_equal(ours.contact.link_idx[1], theirs.contact.link_idx[1])
+    np.testing.assert_allclose(ours.contact.dist, theirs.contact.dist, atol=1e-6)
+    np.testing.assert_array_equal(mjx_walker.state_descriptor(mjx_walker.episode_start(0)), [0.0, 0.0])
