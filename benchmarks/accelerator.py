@@ -25,7 +25,8 @@ the CLI does), it measures, in this order, and prints a Markdown table of each p
    (`estimate_duration`), the device-hours, the runs per device-hour, and whether the 80
    runs fit in one process here (`fit_sweep`);
 4. raw rollouts, `Task.score` jitted alone on the first device: environment steps/s of
-   walker2d (1,000-step episodes) and ant_omni (100 steps), the paper's episodes, at batches
+   walker2d (1,000-step episodes) and ant_omni (100 steps), the paper's episodes, on each
+   physics (`--physics spring` and `mjx`, MJX-JAX), at batches
    from 1,024 to 32,768, for as long as the time budget allows (a batch whose rollout would
    overrun it, predicted from the batch before, is reported as skipped).
 
@@ -67,6 +68,7 @@ if TYPE_CHECKING:
     from smol_dsl.runner.footprint import Footprint
 
 ROLLOUT_TASKS = ("walker2d", "ant_omni")
+ROLLOUT_PHYSICS = ("spring", "mjx")  # `--physics`: Brax's spring and MuJoCo's MJX (MJX-JAX)
 ROLLOUT_BATCHES = (1024, 4096, 8192, 16384, 32768)
 SMALL_ROLLOUT_BATCHES = (16, 32)
 SMALL_SETTINGS = dict(
@@ -108,6 +110,7 @@ class RunnerPart:
 @dataclass
 class RolloutRow:
     task: str
+    physics: str
     episode_length: int
     batch_size: int
     status: str = "not run"
@@ -302,17 +305,17 @@ def measure_rollouts(report: Report, devices: list[jax.Device], deadline: float)
     from smol_dsl.tasks import make_task
 
     batches = SMALL_ROLLOUT_BATCHES if report.small else ROLLOUT_BATCHES
-    for name in ROLLOUT_TASKS:
+    for name, physics in ((name, physics) for name in ROLLOUT_TASKS for physics in ROLLOUT_PHYSICS):
         paper = preset_config(name, "paper")
         episode = SMALL_SETTINGS["episode_length"] if report.small else paper.episode_length
         hidden = SMALL_SETTINGS["hidden_layer_sizes"] if report.small else tuple(paper.hidden_layer_sizes)
-        task = make_task(name, episode_length=episode, hidden_layer_sizes=hidden)
+        task = make_task(name, episode_length=episode, hidden_layer_sizes=hidden, physics=physics)
         score = jax.jit(task.score, compiler_options=task.compiler_options(devices[0].platform))
         start = task.episode_start(0)
         body = jnp.ones((1,), jnp.float32)
         rate, compile_seconds, stopped = None, 0.0, ""
         for batch in batches:
-            row = RolloutRow(name, episode, batch)
+            row = RolloutRow(name, physics, episode, batch)
             report.rollouts.append(row)
             if stopped:
                 row.status = stopped
@@ -550,14 +553,15 @@ def markdown(report: Report) -> str:
         "Scaled linearly from the runs measured together (an upper estimate where more runs at once use the "
         "device better), every archive full at every boundary; not counted: metrics, checkpoints, figures.",
         "",
-        "## Raw rollouts (`Task.score` jitted alone, first device)",
+        "## Raw rollouts (`Task.score` jitted alone, first device; spring and MJX)",
         "",
-        "| task | episode | batch | env steps/s | rollout | compile | status |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | --- |",
+        "| task | physics | episode | batch | env steps/s | rollout | compile | status |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     for rollout in report.rollouts:
         lines.append(
-            f"| {rollout.task} | {rollout.episode_length} | {rollout.batch_size} | {_rate(rollout.steps_per_second)} | "
+            f"| {rollout.task} | {rollout.physics} | {rollout.episode_length} | {rollout.batch_size} | "
+            f"{_rate(rollout.steps_per_second)} | "
             f"{_seconds(rollout.seconds)} | {_seconds(rollout.compile_seconds)} | {rollout.status} |"
         )
     if report.errors:

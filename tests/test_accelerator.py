@@ -49,15 +49,12 @@ def test_small_measures_every_row_on_cpus(tmp_path):
         assert row["fits"].startswith("yes")
     assert {row["scaled_from_runs"] for row in figures["reproduce"]} == {1, 8}
     rollouts = figures["rollouts"]
-    assert [(row["task"], row["batch_size"]) for row in rollouts] == [
-        ("walker2d", 16),
-        ("walker2d", 32),
-        ("ant_omni", 16),
-        ("ant_omni", 32),
+    assert [(row["task"], row["physics"], row["batch_size"]) for row in rollouts] == [
+        (task, physics, batch) for task in ("walker2d", "ant_omni") for physics in ("spring", "mjx") for batch in (16, 32)
     ]
     assert all(row["status"] == "ok" and row["steps_per_second"] > 0 for row in rollouts)
     for row in rollouts:
-        assert f"| {row['task']} | 10 | {row['batch_size']} |" in table
+        assert f"| {row['task']} | {row['physics']} | 10 | {row['batch_size']} |" in table
 
 
 @pytest.mark.parametrize(

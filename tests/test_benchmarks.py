@@ -121,3 +121,20 @@ def test_factor_ranges_tiny(tmp_path: Path) -> None:
     assert trials and all(line.split()[0] in kinds and line.endswith(" finite") for line in trials)
     assert_figures(figures, ["seconds"])
     assert "`TaskSpec.factor_ranges`" in ast.get_docstring(ast.parse((BENCHMARKS / "factor_ranges.py").read_text()))
+
+
+def test_physics_throughput_small(tmp_path: Path) -> None:
+    """walker2d on spring and on MJX, side by side at the tests' size: every figure printed."""
+    lines, figures = run_benchmark("physics_throughput.py", "--small", "--tasks", "walker2d", cwd=tmp_path)
+    assert "# walker2d, batch 16, 20-step episodes, 2 cpu device(s)" in lines
+    names = [
+        f"walker2d_{name}"
+        for name in (
+            *(f"{physics}_{figure}" for physics in ("spring", "mjx") for figure in ("compile_s", "raw_steps_per_s")),
+            *(f"{physics}_engine_evals_per_s" for physics in ("spring", "mjx")),
+            "mjx_over_spring_raw",
+            "mjx_over_spring_engine",
+        )
+    ]
+    assert_figures(figures, names)
+    documented("physics_throughput.py", ["TASK_PHYSICS_raw_steps_per_s", "TASK_mjx_over_spring_raw"])

@@ -29,18 +29,18 @@ from smol_dsl.tasks.registry import TaskSpec
 DUTY_FACTORS = ((0.0, 0.0), (1.0, 1.0))  # two feet, each in contact a proportion of the steps
 
 
-def measured(episode_length: int, **finite: tuple[float, float]) -> dict[str, dict[str, FactorRange]]:
-    """Each kind's stated range on spring: the factors (low, high) at which every rollout of
+def measured(episode_length: int, physics: str = "spring", **finite: tuple[float, float]) -> dict[str, FactorRange]:
+    """Each kind's stated range on `physics`: the factors (low, high) at which every rollout of
     `benchmarks/factor_ranges.py` stayed finite, within float32's safe range."""
+    on = "" if physics == "spring" else f" on {physics}"
+    how = "benchmarks/factor_ranges.py" + ("" if physics == "spring" else f" --physics {physics}")
     return {
-        "spring": {
-            kind: FactorRange(
-                max(low, SAFE_MIN),
-                min(high, SAFE_MAX),
-                f"where random policies' {episode_length}-step rollouts stay finite, benchmarks/factor_ranges.py",
-            )
-            for kind, (low, high) in finite.items()
-        }
+        kind: FactorRange(
+            max(low, SAFE_MIN),
+            min(high, SAFE_MAX),
+            f"where random policies' {episode_length}-step rollouts{on} stay finite, {how}",
+        )
+        for kind, (low, high) in finite.items()
     }
 
 
@@ -58,9 +58,14 @@ WALKER2D = TaskSpec(
         "quick": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("foot", "foot_left")},
-    factor_ranges=measured(
-        1000, gear=(1e-36, 1.33e22), mass=(7.5e-8, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e23)
-    ),
+    factor_ranges={
+        "spring": measured(
+            1000, gear=(1e-36, 1.33e22), mass=(7.5e-8, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e23)
+        ),
+        "mjx": measured(
+            1000, "mjx", gear=(1e-36, 7.5e7), mass=(1e-36, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 2.37e15)
+        ),
+    },
     observation_size=17,  # the policy's input (a test builds the task and checks it)
     step_seconds=0.008,  # the env's dt (checked alike)
     anatomy=Anatomy(
@@ -88,9 +93,11 @@ HALFCHEETAH = TaskSpec(
         "quick": dict(batch_size=64, episode_length=100, evaluations=8_192, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("bfoot", "ffoot")},
-    factor_ranges=measured(
-        1000, gear=(1e-36, 2.37e18), mass=(0.237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1.78e7)
-    ),
+    factor_ranges={
+        "spring": measured(
+            1000, gear=(1e-36, 2.37e18), mass=(0.237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1.78e7)
+        ),
+    },
     observation_size=17,  # the policy's input (a test builds the task and checks it)
     step_seconds=0.05,  # the env's dt (checked alike)
     anatomy=Anatomy(
@@ -126,9 +133,11 @@ ANT_OMNI = TaskSpec(
         "paper": dict(batch_size=1024, episode_length=100, hidden_layer_sizes=(256, 256)),
         "quick": dict(batch_size=64, episode_length=100, evaluations=12_800, hidden_layer_sizes=(256, 256)),
     },
-    factor_ranges=measured(
-        100, gear=(1e-36, 4.22e20), mass=(0.00237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 4.22e7)
-    ),
+    factor_ranges={
+        "spring": measured(
+            100, gear=(1e-36, 4.22e20), mass=(0.00237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 4.22e7)
+        ),
+    },
     observation_size=27,  # the policy's input (a test builds the task and checks it)
     step_seconds=0.05,  # the env's dt (checked alike)
     anatomy=ANT_ANATOMY,
@@ -148,9 +157,11 @@ HOPPER = TaskSpec(
         "quick": dict(batch_size=128, episode_length=100, evaluations=65_536, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": ("foot",)},
-    factor_ranges=measured(
-        1000, gear=(1e-36, 1.78e22), mass=(7.5e-9, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1e36)
-    ),
+    factor_ranges={
+        "spring": measured(
+            1000, gear=(1e-36, 1.78e22), mass=(7.5e-9, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1e36)
+        ),
+    },
     observation_size=11,  # the policy's input (a test builds the task and checks it)
     step_seconds=0.008,  # the env's dt (checked alike)
     anatomy=Anatomy(
@@ -175,9 +186,11 @@ ANT_UNI = TaskSpec(
         "quick": dict(batch_size=64, episode_length=100, evaluations=25_600, hidden_layer_sizes=(64, 64)),
     },
     details={"feet": tuple(f"lower_leg_{i}" for i in "1234")},
-    factor_ranges=measured(
-        1000, gear=(1e-36, 4.22e20), mass=(0.00562, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e7)
-    ),
+    factor_ranges={
+        "spring": measured(
+            1000, gear=(1e-36, 4.22e20), mass=(0.00562, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e7)
+        ),
+    },
     observation_size=27,  # the policy's input (a test builds the task and checks it)
     step_seconds=0.05,  # the env's dt (checked alike)
     anatomy=ANT_ANATOMY,
