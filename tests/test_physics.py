@@ -240,3 +240,37 @@ def test_the_feet_touch_the_same_ground_on_both_physics(mjx_walker):
     np.testing.assert_array_equal(ours.contact.link_idx[1], theirs.contact.link_idx[1])
     np.testing.assert_allclose(ours.contact.dist, theirs.contact.dist, atol=1e-6)
     np.testing.assert_array_equal(mjx_walker.state_descriptor(mjx_walker.episode_start(0)), [0.0, 0.0])
+
+
+# -- a run on MJX: trains, resumes bit for bit, replays, reports ------------------------------
+
+
+@pytest.mark.slow
+def test_a_run_on_mjx_resumes_bit_for_bit_replays_its_elites_and_reports(tmp_path, library):
+    """`run --physics mjx` at the tests' size, interrupted after a few phases and resumed, ends
+    exactly as the same run uninterrupted (the engines are one: compiled once); its records
+    name MJX; every elite replays to the archive bit for bit on MJX (a replay on spring would
+    not); the report says which physics ran."""
+    from small_runs import small_config
+    from test_replay import replays_bit_for_bit
+
+    from smol_dsl.results.report import write_report
+    from smol_dsl.runner import run_experiment
+
+    config = small_config(physics="mjx")
+    whole = run_experiment("walker2d", library["human"], config, out_dir=tmp_path / "whole")
+    run_experiment("walker2d", library["human"], config, out_dir=tmp_path / "cut", stop_after_generation=6)
+    resumed = run_experiment("walker2d", library["human"], config, out_dir=tmp_path / "cut", resume=True)
+    assert resumed.metrics == whole.metrics and whole.final["coverage"] > 0
+    for name in ("metrics.csv", "phases.npz", "config.json"):
+        assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
+    ours, theirs = np.load(tmp_path / "cut" / "archive.npz"), np.load(tmp_path / "whole" / "archive.npz")
+    for name in theirs.files:
+        np.testing.assert_array_equal(ours[name], theirs[name])
+    assert read_config(tmp_path / "whole" / "config.json").physics == "mjx"
+    environment = json.loads((tmp_path / "whole" / ENVIRONMENT_FILE).read_text())["environment"]
+    assert environment["physics"]["name"] == "mjx"
+    assert replays_bit_for_bit(tmp_path / "whole") > 1
+    written = write_report([tmp_path / "whole"], tmp_path / "report", gaits=0)
+    assert "physics mjx" in (tmp_path / "report" / "table.md").read_text()
+    assert "physics mjx (paper: spring)" in written.comparison.summary()
