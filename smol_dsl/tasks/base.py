@@ -230,7 +230,10 @@ class Task:
 
     def compiler_options(self, platform: str | None = None) -> dict[str, str] | None:
         """The XLA options its programs compile with on `platform` (default: JAX's default
-        backend): faster on CPUs, the same results bit for bit (`tasks.compiling`)."""
+        backend): faster on CPUs, the same results bit for bit (`tasks.compiling`), where that
+        was measured: on spring; on MJX, XLA's defaults."""
+        if self.physics != DEFAULT_PHYSICS:
+            return None
         return compiler_options(self.name, platform or jax.default_backend())
 
 
