@@ -84,12 +84,22 @@ def test_the_command_line_refuses_a_bad_physics(tmp_path, monkeypatch, capsys, a
     assert code == 2 and message in err and not list(tmp_path.iterdir())
 
 
-def test_check_proves_a_schedule_against_the_ranges_of_the_physics(capsys):
+def test_check_proves_a_schedule_against_the_ranges_of_the_physics(tmp_path, capsys):
+    """A gear of 1e8 is within what walker2d takes on spring (finite up to 1.33e22) and beyond
+    what it takes on MJX (7.5e7): `check --task` proves the one and refuses the other, located."""
     from smol_dsl.cli import main
 
     assert main(["check", "smol", "--task", "walker2d", "--physics", "mjx"]) == 0
     out = capsys.readouterr().out
     assert "walker2d on mjx takes these factors" in out and "smol.sched: ok" in out
+    assert "gear: 1e-36 .. 7.5e+07 (where random policies' 1000-step rollouts on mjx stay finite" in out
+    strong = tmp_path / "strong.sched"
+    strong.write_text('name "strong"\n0% .. 90%: constant 1e8\n90% .. 100%: tail\n')
+    assert main(["check", str(strong), "--task", "walker2d"]) == 0
+    capsys.readouterr()
+    code, err = cli(["check", str(strong), "--task", "walker2d", "--physics", "mjx"], capsys)
+    assert code == 2 and f"{strong}:2:1: error: the gear factor may go up to 1e+08" in err
+    assert "walker2d takes gear factors from 1e-36 to 7.5e+07" in err
 
 
 def _runs_on_two_physics(root: Path, library: dict) -> list[Path]:
