@@ -110,7 +110,9 @@ def add_physics_option(command: argparse.ArgumentParser, what: str) -> None:
         "--physics",
         choices=PHYSICS_NAMES,
         default=DEFAULT_PHYSICS,
-        help=f"{what}: " + "; ".join(f"{physics.name}, {physics.help}" for physics in PHYSICS.values()),
+        help=f"{what}: "
+        + "; ".join(f"{physics.name}, {physics.help}" for physics in PHYSICS.values())
+        + f" (default {DEFAULT_PHYSICS})",
     )
 
 

@@ -429,4 +429,4 @@ def physics_note(config: RunConfig) -> str:
     """What an announcement adds for a run on another physics than the default (spring)."""
     from smol_dsl.tasks.physics import DEFAULT_PHYSICS, PHYSICS
 
-    return "" if config.physics == DEFAULT_PHYSICS else f", on {PHYSICS[config.physics].help.split(',')[0]}"
+    return "" if config.physics == DEFAULT_PHYSICS else f", on {PHYSICS[config.physics].title}"

@@ -9,7 +9,8 @@
 
 - `scoring_function(task, schedule)`: `score(genotypes, key, body) -> (fitnesses,
   descriptors, extra_scores)`, QDax's scoring function with the body a traced argument
-  (`extra_scores["transitions"]` for PGA-ME's and DCRL-ME's emitters);
+  (`extra_scores["transitions"]` for PGA-ME's and DCRL-ME's emitters; `physics="mjx"`, or a
+  task of `make_task(name, physics="mjx")`, simulates it on MuJoCo's MJX);
 - `phase_bodies(schedule, num_phases, key)`: the (num_phases, C) bodies it takes;
 - `reevaluate(repertoire, score, body, key, extinction)`: the phase-boundary step on any
   QDax repertoire;

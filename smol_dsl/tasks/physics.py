@@ -20,19 +20,21 @@ from importlib import metadata
 @dataclass(frozen=True)
 class Physics:
     """A physics a task can be simulated with: its name, the Brax backend that runs it, the
-    package that implements it (recorded with its version), and a line for help texts."""
+    package that implements it (recorded with its version), what to call it in a sentence,
+    and a line for help texts."""
 
     name: str
     backend: str
     package: str
+    title: str
     help: str
 
 
 PHYSICS: dict[str, Physics] = {
     physics.name: physics
     for physics in (
-        Physics("spring", "spring", "brax", "Brax's spring pipeline, as in the paper (the default)"),
-        Physics("mjx", "mjx", "mujoco-mjx", "MuJoCo's MJX (MuJoCo XLA) in JAX, the physics MuJoCo maintains"),
+        Physics("spring", "spring", "brax", "Brax's spring pipeline", "Brax's spring pipeline, as in the paper"),
+        Physics("mjx", "mjx", "mujoco-mjx", "MuJoCo's MJX", "MuJoCo's MJX (MuJoCo XLA) in JAX, which MuJoCo maintains"),
     )
 }
 PHYSICS_NAMES = tuple(PHYSICS)
