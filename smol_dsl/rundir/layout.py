@@ -37,8 +37,8 @@ FILES = (
     (
         ENVIRONMENT_FILE,
         "the software and hardware the run was produced by (Python, jax, brax, qdax and other versions, smol-dsl's "
-        "version and commit, the devices, the processor and its vector extensions), and every resume allowed "
-        "under another",
+        "version and commit, the physics and the package that implements it, the devices, the processor and its "
+        "vector extensions), and every resume allowed under another",
     ),
     (SCHEDULE_FILE, "the schedule's source"),
     (
