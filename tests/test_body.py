@@ -197,11 +197,11 @@ def test_factors_of_one_kind_multiply(walker_body):
     # walker2d's spring pipeline simulates unit inertia (spring_inertia_scale 1): now written as such, times the factor
     assert float(sys.spring_inertia_scale) == 1.0 and float(changed.spring_inertia_scale) == 0.0
     np.testing.assert_allclose(np.asarray(changed.link.inertia.i), links[:, None, None] * np.eye(3))
-    np.testing.assert_allclose(np.asarray(changed.body_mass)[1:], np.asarray(changed.link.inertia.mass), rtol=1e-6)
-    diagonal = np.diagonal(np.asarray(changed.link.inertia.i), axis1=1, axis2=2)  # principal axes: i is diagonal
-    np.testing.assert_allclose(np.asarray(changed.body_inertia)[1:], diagonal, rtol=1e-6)
-    np.testing.assert_array_equal(np.asarray(changed.gravity), np.asarray(changed.opt.gravity))
     np.testing.assert_allclose(np.asarray(changed.gravity), np.asarray(sys.gravity) * 0.5)
+    # the fields MJX reads are MJX's hook's to write (tasks.mjx_body): spring's leaves them alone
+    for field in ("body_mass", "body_inertia", "actuator_gear", "body_invweight0"):
+        np.testing.assert_array_equal(np.asarray(getattr(changed, field)), np.asarray(getattr(sys, field)))
+    np.testing.assert_array_equal(np.asarray(changed.opt.gravity), np.asarray(sys.opt.gravity))
     np.testing.assert_array_equal(np.asarray(changed.geom_friction), np.asarray(sys.geom_friction))
 
 
