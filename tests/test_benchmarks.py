@@ -106,7 +106,7 @@ def test_factor_ranges_tiny(tmp_path: Path) -> None:
     """walker2d's four kinds over 20-step episodes: each range a low and a high factor around 1,
     found by trials printed one a line."""
     lines, figures = run_benchmark("factor_ranges.py", "walker2d", "--episode-length", "20", cwd=tmp_path)
-    assert "walker2d: 16 random policies, 20 steps" in lines, lines
+    assert "walker2d on spring: 16 random policies, 20 steps" in lines, lines
     kinds = ["gear", "mass", "friction", "gravity"]
     ranges = {}
     for line in lines:
