@@ -16,10 +16,12 @@ of 8 factors per decade from 1e-36 to 1e36, so each stated end lies within a fac
 the first factor that failed. Brax's spring pipeline simulates most bodies far beyond sense
 without overflowing: what breaks it is a gear or a gravity so large that the state
 overflows, or a body so light that its links' accelerations do (halfcheetah below 0.2 of its
-mass, the ants below about 0.02). On MJX (`--physics mjx`, the same search) walker2d and hopper
-were measured: finite up to gear 7.5e7 and 1.78e8 and gravity 2.37e15 and 5.62e13, and at any
-mass or friction (MJX's inverse weights follow the mass); the other tasks' MJX ranges are not
-measured yet, and float32's safe range stands for them.
+mass, the ants below about 0.02). On MJX (`--physics mjx`, the same search) the ranges are
+narrower: walker2d and hopper are finite up to gear 7.5e7 and 1.78e8 and gravity 2.37e15 and
+5.62e13, at any mass or friction (MJX's inverse weights follow the mass); ant_omni (100 steps)
+up to gear 4.22e3 and gravity 1.78e5, friction from 0.00237; halfcheetah only up to gear 5.62
+and gravity 750, mass from 1e-15 to 1.78e33, friction from 0.0133. ant_uni's MJX ranges are
+not measured yet: float32's safe range stands for them.
 """
 
 from __future__ import annotations
@@ -100,6 +102,9 @@ HALFCHEETAH = TaskSpec(
         "spring": measured(
             1000, gear=(1e-36, 2.37e18), mass=(0.237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 1.78e7)
         ),
+        "mjx": measured(
+            1000, "mjx", gear=(1e-36, 5.62), mass=(1e-15, 1.78e33), friction=(0.0133, 1.33e35), gravity=(1e-36, 750)
+        ),
     },
     observation_size=17,  # the policy's input (a test builds the task and checks it)
     step_seconds=0.05,  # the env's dt (checked alike)
@@ -139,6 +144,9 @@ ANT_OMNI = TaskSpec(
     factor_ranges={
         "spring": measured(
             100, gear=(1e-36, 4.22e20), mass=(0.00237, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 4.22e7)
+        ),
+        "mjx": measured(
+            100, "mjx", gear=(1e-36, 4.22e3), mass=(1e-36, 1e36), friction=(0.00237, 2.37e16), gravity=(1e-36, 1.78e5)
         ),
     },
     observation_size=27,  # the policy's input (a test builds the task and checks it)
