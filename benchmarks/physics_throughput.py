@@ -24,10 +24,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import time
 import warnings
-from collections.abc import Callable
 
 warnings.filterwarnings("ignore")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -37,23 +35,10 @@ if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
+from runner_throughput import interleaved  # noqa: E402  # this folder's: the same interleaved medians
 
 PHYSICS = ("spring", "mjx")
 SMALL = dict(batch_size=16, episode_length=20, cells=32, repeats=1)
-
-
-def interleaved(programs: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
-    """Median seconds per call of each program (warmed up: compiled), taking turns A, B, ...,
-    then the reverse."""
-    seconds: dict[str, list[float]] = {name: [] for name in programs}
-    order = list(programs.items())
-    for _ in range(repeats):
-        for name, program in order:
-            started = time.perf_counter()
-            jax.block_until_ready(program())
-            seconds[name].append(time.perf_counter() - started)
-        order.reverse()
-    return {name: statistics.median(values) for name, values in seconds.items()}
 
 
 def programs_of(task_name: str, physics: str, batch: int, length: int, cells: int) -> tuple[dict, float]:

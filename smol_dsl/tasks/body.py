@@ -29,7 +29,7 @@ actuator or link), so `modulation(anatomy, (GEAR,))(sys, body)` is bit for bit
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import jax
@@ -102,36 +102,57 @@ def check_channels(anatomy: Anatomy | None, channels: Sequence[Channel]) -> tupl
     return channels
 
 
-def modulation(anatomy: Anatomy | None, channels: Sequence[Channel]) -> Modulate:
-    """The hook of a body under `channels`: (sys, body (C,)) -> the changed sys.
+Write = Callable[["System", jax.Array], "System"]
+"""(sys, factor) -> the sys with one kind's factor written into the fields a physics reads:
+a scalar or one per part (`kind_factor`); per link, (L,), for mass."""
 
-    `anatomy` names the actuators and links of `sys` (in its order); without one, only
-    channels without targets can be scheduled. The body may be traced.
-    """
+
+def written_body(
+    anatomy: Anatomy | None,
+    channels: Sequence[Channel],
+    parts: Callable[[System], tuple[int, int]],
+    writes: Mapping[str, Write],
+) -> Modulate:
+    """The hook of a body under `channels` for a physics that reads it as `writes` says: per
+    kind, in their order, the `Write` of the kind's factor (`kind_factor`; skipped where no
+    channel is of that kind); `parts(sys)` counts the sys's actuators and links, which must be
+    the anatomy's. Each physics' default `Modulation` is this with its own writes."""
     channels = check_channels(anatomy, channels)
 
     def modulate(sys: System, body: jax.Array) -> System:
-        actuators, links = sys.actuator.gear.shape[0], sys.link.inertia.mass.shape[0]
+        actuators, links = parts(sys)
         if anatomy is not None and (actuators, links) != (len(anatomy.actuators), len(anatomy.links)):
             raise ValueError(
                 f"the anatomy has {len(anatomy.actuators)} actuators and {len(anatomy.links)} links; this sys has "
                 f"{actuators} and {links}"
             )
-        gear = kind_factor(anatomy, channels, body, "gear", actuators)
-        if gear is not None:
-            sys = scale_gear(sys, gear)
-        mass = kind_factor(anatomy, channels, body, "mass", links)
-        if mass is not None:
-            sys = _scale_mass(sys, jnp.broadcast_to(mass, (links,)))
-        friction = kind_factor(anatomy, channels, body, "friction", 1)
-        if friction is not None:
-            sys = sys.replace(geom_friction=sys.geom_friction * friction, pair_friction=sys.pair_friction * friction)
-        gravity = kind_factor(anatomy, channels, body, "gravity", 1)
-        if gravity is not None:
-            sys = sys.replace(gravity=sys.gravity * gravity)
+        sizes = {"gear": actuators, "mass": links, "friction": 1, "gravity": 1}
+        for kind, write in writes.items():
+            factor = kind_factor(anatomy, channels, body, kind, sizes[kind])
+            if factor is not None:
+                sys = write(sys, jnp.broadcast_to(factor, (links,)) if kind == "mass" else factor)
         return sys
 
     return modulate
+
+
+def scale_friction(sys: System, factor: jax.Array) -> System:
+    """`sys` with every geom's friction coefficients (and explicit pairs') times `factor`:
+    what spring's collision and MJX's read alike."""
+    return sys.replace(geom_friction=sys.geom_friction * factor, pair_friction=sys.pair_friction * factor)
+
+
+def modulation(anatomy: Anatomy | None, channels: Sequence[Channel]) -> Modulate:
+    """The hook of a body under `channels` on spring: (sys, body (C,)) -> the changed sys.
+
+    `anatomy` names the actuators and links of `sys` (in its order); without one, only
+    channels without targets can be scheduled. The body may be traced.
+    """
+    return written_body(anatomy, channels, _spring_parts, SPRING_WRITES)
+
+
+def _spring_parts(sys: System) -> tuple[int, int]:
+    return sys.actuator.gear.shape[0], sys.link.inertia.mass.shape[0]
 
 
 def _scale_mass(sys: System, factor: jax.Array) -> System:
@@ -145,6 +166,15 @@ def _scale_mass(sys: System, factor: jax.Array) -> System:
     zero = jnp.zeros((), jnp.result_type(sys.spring_mass_scale))
     link = sys.link.replace(inertia=inertia.replace(mass=mass, i=i))
     return sys.replace(link=link, spring_mass_scale=zero, spring_inertia_scale=zero)
+
+
+SPRING_WRITES: dict[str, Write] = {
+    "gear": scale_gear,
+    "mass": _scale_mass,
+    "friction": scale_friction,
+    "gravity": lambda sys, factor: sys.replace(gravity=sys.gravity * factor),
+}
+"""What the spring pipeline reads of each kind (module docstring)."""
 
 
 def modulation_for(physics: str) -> Modulation:

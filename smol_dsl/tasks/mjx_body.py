@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from smol_dsl.tasks.body import Modulate, check_channels, kind_factor
+from smol_dsl.tasks.body import Modulate, Write, scale_friction, written_body
 
 if TYPE_CHECKING:
     from brax.base import System
@@ -44,30 +44,11 @@ MINIMUM_INVERSE_WEIGHT = 1e-15  # MuJoCo's mjMINVAL, its floor for an inverse we
 def mjx_modulation(anatomy: Anatomy | None, channels: Sequence[Channel]) -> Modulate:
     """The hook of a body under `channels` on MJX: (sys, body (C,)) -> the changed sys, with
     the fields MJX reads scaled (module docstring). The body may be traced."""
-    channels = check_channels(anatomy, channels)
+    return written_body(anatomy, channels, _mjx_parts, MJX_WRITES)
 
-    def modulate(sys: System, body: jax.Array) -> System:
-        actuators, links = sys.actuator_gear.shape[0], sys.body_mass.shape[0] - 1
-        if anatomy is not None and (actuators, links) != (len(anatomy.actuators), len(anatomy.links)):
-            raise ValueError(
-                f"the anatomy has {len(anatomy.actuators)} actuators and {len(anatomy.links)} links; this model has "
-                f"{actuators} and {links}"
-            )
-        gear = kind_factor(anatomy, channels, body, "gear", actuators)
-        if gear is not None:
-            sys = sys.replace(actuator_gear=sys.actuator_gear * jnp.reshape(gear, (-1, 1)))
-        mass = kind_factor(anatomy, channels, body, "mass", links)
-        if mass is not None:
-            sys = scale_mass(sys, jnp.broadcast_to(mass, (links,)))
-        friction = kind_factor(anatomy, channels, body, "friction", 1)
-        if friction is not None:
-            sys = sys.replace(geom_friction=sys.geom_friction * friction, pair_friction=sys.pair_friction * friction)
-        gravity = kind_factor(anatomy, channels, body, "gravity", 1)
-        if gravity is not None:
-            sys = sys.replace(opt=sys.opt.replace(gravity=sys.opt.gravity * gravity))
-        return sys
 
-    return modulate
+def _mjx_parts(sys: System) -> tuple[int, int]:
+    return sys.actuator_gear.shape[0], sys.body_mass.shape[0] - 1  # body 0 is the world
 
 
 def scale_mass(sys: System, factor: jax.Array) -> System:
@@ -126,3 +107,12 @@ def _dof_invweights(sys: System, diagonal: jax.Array) -> jax.Array:
     counts = np.bincount(groups, minlength=sys.nv)
     sums = jax.ops.segment_sum(diagonal, jnp.asarray(groups), num_segments=sys.nv)
     return jnp.maximum(MINIMUM_INVERSE_WEIGHT, sums[groups] / counts[groups])
+
+
+MJX_WRITES: dict[str, Write] = {
+    "gear": lambda sys, factor: sys.replace(actuator_gear=sys.actuator_gear * jnp.reshape(factor, (-1, 1))),
+    "mass": scale_mass,
+    "friction": scale_friction,
+    "gravity": lambda sys, factor: sys.replace(opt=sys.opt.replace(gravity=sys.opt.gravity * factor)),
+}
+"""What MJX reads of each kind (module docstring)."""
