@@ -18,14 +18,15 @@ import smol_dsl
 from smol_dsl import ScheduleError
 from smol_dsl.tasks import TASK_NAMES, task_spec
 from smol_dsl.tasks.body import kind_factor
+from smol_dsl.tasks.physics import PHYSICS_NAMES
 from smol_dsl.tasks.ranges import FLOAT32_RANGE, FactorRange, factor_range
 
 TAIL = "90% .. 100%: tail\n"
 
 
-def refusal(task: str, text: str) -> ScheduleError:
+def refusal(task: str, text: str, physics: str = "spring") -> ScheduleError:
     with pytest.raises(ScheduleError) as caught:
-        task_spec(task).check_schedule(smol_dsl.parse(text, path="body.sched"))
+        task_spec(task).check_schedule(smol_dsl.parse(text, path="body.sched"), physics)
     return caught.value
 
 
@@ -38,17 +39,18 @@ def test_channels_proven_alone_are_refused_when_their_product_leaves_the_range()
     assert str(error).startswith("body.sched:2:1: error:")
 
 
+@pytest.mark.parametrize("physics", PHYSICS_NAMES)
 @pytest.mark.parametrize("task", TASK_NAMES)
-def test_a_plain_factor_the_physics_cannot_take_is_refused_on_every_task(task):
+def test_a_plain_factor_the_physics_cannot_take_is_refused_on_every_task(task, physics):
     ends = 0
     for kind in ("gear", "mass", "friction", "gravity"):
-        assert kind in task_spec(task).ranges("spring"), f"{task} states no {kind} range"
-        allowed = factor_range(task_spec(task).ranges("spring"), kind)
+        assert kind in task_spec(task).ranges(physics), f"{task} states no {kind} range on {physics}"
+        allowed = factor_range(task_spec(task).ranges(physics), kind)
         for value, way in ((allowed.high * 1.5, "up to"), (allowed.low / 1.5, "down to")):
             if not FLOAT32_RANGE.low < value < FLOAT32_RANGE.high:
                 continue  # an end at float32's: the language itself refuses what lies beyond
             ends += 1
-            error = refusal(task, f"channel {kind}\n0% .. 90%: constant {value:.6g}\n{TAIL}")
+            error = refusal(task, f"channel {kind}\n0% .. 90%: constant {value:.6g}\n{TAIL}", physics)
             assert f"the {kind} factor may go {way}" in error.message and (error.line, error.column) == (2, 1)
             assert f"{task} takes {kind} factors from {allowed.low:g} to {allowed.high:g}" in error.hint
     assert ends >= 2  # gear's high and mass's low at least
@@ -59,12 +61,13 @@ def test_the_issue_s_plain_gear_of_1e30_is_refused():
     assert "the gear factor may go up to 1e+30" in error.message and error.line == 1
 
 
-def test_every_library_schedule_fits_every_task_whose_body_it_names(library):
+@pytest.mark.parametrize("physics", PHYSICS_NAMES)
+def test_every_library_schedule_fits_every_task_whose_body_it_names(library, physics):
     for task in TASK_NAMES:
         anatomy = task_spec(task).anatomy
         for _name, schedule in library.items():
             if not any(anatomy.unknown_targets(channel) for channel in schedule.channels):
-                task_spec(task).check_schedule(schedule)  # no refusal
+                task_spec(task).check_schedule(schedule, physics)  # no refusal
 
 
 def test_a_range_holds_one_and_is_positive():

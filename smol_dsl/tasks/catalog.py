@@ -19,9 +19,9 @@ overflows, or a body so light that its links' accelerations do (halfcheetah belo
 mass, the ants below about 0.02). On MJX (`--physics mjx`, the same search) the ranges are
 narrower: walker2d and hopper are finite up to gear 7.5e7 and 1.78e8 and gravity 2.37e15 and
 5.62e13, at any mass or friction (MJX's inverse weights follow the mass); ant_omni (100 steps)
-up to gear 4.22e3 and gravity 1.78e5, friction from 0.00237; halfcheetah only up to gear 5.62
-and gravity 750, mass from 1e-15 to 1.78e33, friction from 0.0133. ant_uni's MJX ranges are
-not measured yet: float32's safe range stands for them.
+and ant_uni up to gear 4.22e3 and 7.5e3 and gravity 1.78e5, friction from 0.00237;
+halfcheetah only up to gear 5.62 and gravity 750, mass from 1e-15 to 1.78e33, friction from
+0.0133.
 """
 
 from __future__ import annotations
@@ -203,6 +203,9 @@ ANT_UNI = TaskSpec(
     factor_ranges={
         "spring": measured(
             1000, gear=(1e-36, 4.22e20), mass=(0.00562, 1e36), friction=(1e-36, 1e36), gravity=(1e-36, 3.16e7)
+        ),
+        "mjx": measured(
+            1000, "mjx", gear=(1e-36, 7.5e3), mass=(1e-36, 1e36), friction=(0.00237, 2.37e16), gravity=(1e-36, 1.78e5)
         ),
     },
     observation_size=27,  # the policy's input (a test builds the task and checks it)
