@@ -195,6 +195,9 @@ def test_a_refused_resume_names_each_differing_setting(small_run, tmp_path, caps
     assert "--batch-size: the run was started with 16, not 8" in err
     assert "--seed: the run was started with 0, not 3" in err
     assert "{" not in err and "--phases:" not in err  # no JSON dump, nothing that agrees
+    code, err = cli([*argv[:-1], "--out", str(out), "--resume"], capsys)  # with the progress bar
+    assert code == 2 and "--evals: the run was started with 208, not 192" in err
+    assert "gen/s" not in err and "%|" not in err  # refused before the bar appears
     code, err = cli(["run", "walker2d", "smol", *FLAGS, "--no-progress", "--out", str(out), "--resume"], capsys)
     assert code == 2 and "was started with a different schedule" in err and str(out / "schedule.sched") in err
 

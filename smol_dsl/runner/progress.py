@@ -23,12 +23,11 @@ class ProgressBar:
     and evals/s; for a sweep (`update` given every run's row) the phase, the best max
     fitness and the median coverage over runs, the median share of cells the re-evaluation
     kept filled, and evals/s over all runs. A re-evaluation that left under half the cells
-    filled is written above the bar (`reevaluation_warning`)."""
+    filled is written above the bar (`reevaluation_warning`). The bar appears with the
+    first row, so a run refused before it trains (a resume with other settings) prints none."""
 
     def __init__(self, config: RunConfig) -> None:
-        from tqdm import tqdm
-
-        self._bar = tqdm(total=config.generations + 1, unit="gen", dynamic_ncols=True, leave=True)
+        self._bar: Any = None  # a tqdm bar, from the first row on
         self._config = config
         self._started = time.perf_counter()
         self._first_evaluations: int | None = None
@@ -36,6 +35,10 @@ class ProgressBar:
 
     def update(self, rows: list[dict[str, Any]], total: int) -> None:
         """Show the latest row of every run (one, or every run of a sweep)."""
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=self._config.generations + 1, unit="gen", dynamic_ncols=True, leave=True)
         evaluations = sum(row["evaluations"] + row["reevaluations"] for row in rows)
         if self._first_evaluations is None:
             self._first_evaluations = evaluations
@@ -65,7 +68,8 @@ class ProgressBar:
         self._bar.refresh()
 
     def close(self) -> None:
-        self._bar.close()
+        if self._bar is not None:
+            self._bar.close()
 
 
 class ReevaluationWarnings:
