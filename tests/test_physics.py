@@ -14,13 +14,20 @@ import pytest
 from small_runs import cli
 from synthetic_runs import snapshot, write_run
 
+from smol_dsl.errors import UserInputError
 from smol_dsl.results.runs import ReportError, load_runs
 from smol_dsl.rundir import describe_environment, environment_differences, read_config
 from smol_dsl.rundir.environment import environment_text
 from smol_dsl.rundir.layout import ENVIRONMENT_FILE, LOCK_FILE, RunDirectoryError
 from smol_dsl.runner import preset_config
 from smol_dsl.tasks import make_task
-from smol_dsl.tasks.physics import PHYSICS_NAMES, check_physics, physics_record
+from smol_dsl.tasks.physics import (
+    MJX_IMPLEMENTATION,
+    PHYSICS_NAMES,
+    check_mjx_implementation,
+    check_physics,
+    physics_record,
+)
 
 CHANNELS = ["gear", "mass", "friction", "gravity"]
 
@@ -154,6 +161,15 @@ def test_a_run_is_not_resumed_on_another_physics(tmp_path, monkeypatch, capsys, 
 @pytest.fixture(scope="module")
 def mjx_walker():
     return make_task("walker2d", episode_length=20, physics="mjx")
+
+
+def test_mjx_builds_the_tasks_for_mjx_jax_and_a_model_for_warp_is_refused(mjx_walker):
+    """What environment.json records as MJX's implementation is the built model's; a model
+    MJX built for Warp (MJX_GPU_DEFAULT_WARP=true on an NVIDIA GPU with warp-lang) is refused
+    with what to do, before anything runs."""
+    assert mjx_walker.env.sys.impl.value == MJX_IMPLEMENTATION == physics_record("mjx")["implementation"]
+    with pytest.raises(UserInputError, match=r"'warp' implementation.*unset MJX_GPU_DEFAULT_WARP"):
+        check_mjx_implementation("warp")
 
 
 @pytest.mark.slow

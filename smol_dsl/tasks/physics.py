@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib import metadata
 
+from smol_dsl.errors import UserInputError
+
 
 @dataclass(frozen=True)
 class Physics:
@@ -39,6 +41,9 @@ PHYSICS: dict[str, Physics] = {
 }
 PHYSICS_NAMES = tuple(PHYSICS)
 DEFAULT_PHYSICS = "spring"
+MJX_IMPLEMENTATION = "jax"
+"""The implementation MJX runs smol-dsl's tasks with (MJX's `impl`): MJX-JAX. MuJoCo Warp is
+not wired (docs/runner.md#physics-spring-or-mjx)."""
 
 
 def physics_problem(name: object) -> str | None:
@@ -66,5 +71,16 @@ def physics_record(name: str) -> dict[str, str | None]:
         version = None
     record: dict[str, str | None] = {"name": physics.name, "package": physics.package, "version": version}
     if physics.name == "mjx":
-        record["implementation"] = "jax"  # MJX's `impl`: smol-dsl builds its models for MJX-JAX
+        record["implementation"] = MJX_IMPLEMENTATION  # what `check_mjx_implementation` holds
     return record
+
+
+def check_mjx_implementation(implementation: str) -> None:
+    """Refuse a model MJX built for an implementation other than MJX-JAX (MuJoCo Warp, which
+    MJX picks on an NVIDIA GPU where warp-lang is installed and MJX_GPU_DEFAULT_WARP=true):
+    smol-dsl writes bodies into MJX-JAX's fields and Brax makes its data for MJX-JAX only."""
+    if implementation != MJX_IMPLEMENTATION:
+        raise UserInputError(
+            f"MJX built the task's model for its {implementation!r} implementation, and smol-dsl runs MJX as "
+            f"MJX-JAX only (MuJoCo Warp is not supported yet); unset MJX_GPU_DEFAULT_WARP, which asks MJX for Warp"
+        )

@@ -26,6 +26,8 @@ import warnings
 from collections.abc import Iterator
 from typing import Any
 
+from smol_dsl.tasks.physics import check_mjx_implementation
+
 WARP_LINE = re.compile(r"Failed to import (mujoco_)?warp: ")
 BRAX_MAINTENANCE = r"Brax System, piplines and environments are not actively"  # sic, as Brax spells it
 
@@ -65,9 +67,13 @@ def building_models() -> Iterator[None]:
 
 
 def brax_environment(name: str, **options: Any) -> Any:
-    """`brax.envs.get_environment(name, **options)`, quietly."""
+    """`brax.envs.get_environment(name, **options)`, quietly; on MJX (`backend="mjx"`), one
+    whose model MJX built for MJX-JAX (`physics.check_mjx_implementation`)."""
     import_brax()
     import brax.envs
 
     with building_models():
-        return brax.envs.get_environment(name, **options)
+        env = brax.envs.get_environment(name, **options)
+    if options.get("backend") == "mjx":
+        check_mjx_implementation(env.sys.impl.value)
+    return env
