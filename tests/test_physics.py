@@ -155,6 +155,18 @@ def test_a_run_is_not_resumed_on_another_physics(tmp_path, monkeypatch, capsys, 
     assert {name: data for name, data in after.items() if name != LOCK_FILE} == before
 
 
+def test_mjx_on_a_cpu_with_several_runs_per_step_is_warned_of_the_known_hang(tmp_path, monkeypatch, capsys):
+    """docs/scaling.md's known hang: the note comes before anything compiles, and only where
+    a CPU device would advance several MJX runs at once."""
+    monkeypatch.chdir(tmp_path)
+    sweep = ["sweep", "walker2d", "vanilla", "--seeds", "2", "--dry-run", "--no-measure", "--devices", "1"]
+    code, err = cli([*sweep, "--physics", "mjx", "--runs-per-step", "2"], capsys)
+    assert code == 0 and "note: MJX on a CPU with several runs per step has been seen to hang" in err
+    for others in (["--physics", "mjx"], ["--runs-per-step", "2"]):  # one at a time; spring
+        code, err = cli([*sweep, *others], capsys)
+        assert code == 0 and "hang" not in err, others
+
+
 # -- MJX's fields, and what each channel changes (real MJX physics) ---------------------------
 
 

@@ -196,7 +196,7 @@ class TrainingCommand(ABC):
         check_out_dir(out)  # before anything compiles: a file, a device or a path under a file
         if not args.resume and part == (0, 1) and non_empty(out):
             raise busy(out)
-        print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
+        self.announce(plan, training, out)
         footprint = training.footprint
         if args.dry_run or config.preset == "paper" or footprint.device_bytes > LARGE_BYTES:
             print(f"smol-dsl {self.command}: what this will need, by arithmetic before compiling:", file=sys.stderr)
@@ -239,6 +239,13 @@ class TrainingCommand(ABC):
     def note(self, args: argparse.Namespace, config: RunConfig) -> str | None:
         """A note printed before training starts, if any."""
         return None
+
+    def announce(self, plan: Plan, training: TrainingPlan, out: Path) -> None:
+        """Print what will run and where, before anything compiles, and the known hang's
+        note where it applies (`MJX_CPU_HANG`)."""
+        print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
+        if _may_hang(training):
+            print(f"smol-dsl {self.command}: note: {MJX_CPU_HANG}", file=sys.stderr)
 
     def start(self, plan: Plan, training: TrainingPlan, progress: Callable[..., None]) -> list[RunResult]:
         """Train (or resume) the planned runs, reporting every run's rows to `progress`; the
@@ -361,6 +368,18 @@ def _config(args: argparse.Namespace) -> RunConfig:
         episode_length=args.episode_length,
         physics=args.physics,
     )
+
+
+MJX_CPU_HANG = (
+    "MJX on a CPU with several runs per step has been seen to hang inside XLA (10 walker2d runs of 128 at once; "
+    "docs/scaling.md, 'A known hang'): if the progress stops with the CPU idle, use the default, one run at a time"
+)
+
+
+def _may_hang(training: TrainingPlan) -> bool:
+    """Whether the training is MJX on CPU devices with more than one run per step (`MJX_CPU_HANG`)."""
+    at_once = training.runs_per_step or -(-len(training.runs) // len(training.devices))
+    return training.config.physics == "mjx" and training.devices[0].platform == "cpu" and at_once > 1
 
 
 def _with_progress(
