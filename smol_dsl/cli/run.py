@@ -242,10 +242,13 @@ class TrainingCommand(ABC):
 
     def announce(self, plan: Plan, training: TrainingPlan, out: Path) -> None:
         """Print what will run and where, before anything compiles, and the known hang's
-        note where it applies (`MJX_CPU_HANG`)."""
+        note where it applies (`runner.sweep.known_hang`)."""
         print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
-        if _may_hang(training):
-            print(f"smol-dsl {self.command}: note: {MJX_CPU_HANG}", file=sys.stderr)
+        from smol_dsl.runner.sweep import known_hang
+
+        hang = known_hang(training)
+        if hang is not None:
+            print(f"smol-dsl {self.command}: note: {hang}", file=sys.stderr)
 
     def start(self, plan: Plan, training: TrainingPlan, progress: Callable[..., None]) -> list[RunResult]:
         """Train (or resume) the planned runs, reporting every run's rows to `progress`; the
@@ -368,18 +371,6 @@ def _config(args: argparse.Namespace) -> RunConfig:
         episode_length=args.episode_length,
         physics=args.physics,
     )
-
-
-MJX_CPU_HANG = (
-    "MJX on a CPU with several runs per step has been seen to hang inside XLA (10 walker2d runs of 128 at once; "
-    "docs/scaling.md, 'A known hang'): if the progress stops with the CPU idle, use the default, one run at a time"
-)
-
-
-def _may_hang(training: TrainingPlan) -> bool:
-    """Whether the training is MJX on CPU devices with more than one run per step (`MJX_CPU_HANG`)."""
-    at_once = training.runs_per_step or -(-len(training.runs) // len(training.devices))
-    return training.config.physics == "mjx" and training.devices[0].platform == "cpu" and at_once > 1
 
 
 def _with_progress(

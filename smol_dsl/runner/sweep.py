@@ -129,6 +129,21 @@ def plan_training(
     return TrainingPlan(task, config, every, runs, devices, part, footprint, chosen, directory, is_sweep)
 
 
+MJX_CPU_HANG = (
+    "MJX on a CPU with several runs per step has been seen to hang inside XLA (10 walker2d runs of 128 at once; "
+    "docs/scaling.md, 'A known hang'): if the progress stops with the CPU idle, use the default, one run at a time"
+)
+
+
+def known_hang(plan: TrainingPlan) -> str | None:
+    """`MJX_CPU_HANG` where the training is MJX on CPU devices that advance several runs at
+    once (docs/scaling.md's known hang), else None."""
+    at_once = plan.runs_per_step or -(-len(plan.runs) // len(plan.devices))
+    if plan.config.physics == "mjx" and plan.devices[0].platform == "cpu" and at_once > 1:
+        return MJX_CPU_HANG
+    return None
+
+
 def train_planned(
     plan: TrainingPlan,
     *,
