@@ -243,9 +243,9 @@ class TrainingCommand(ABC):
     def announce(self, plan: Plan, training: TrainingPlan, out: Path) -> None:
         """Print what will run and where, before anything compiles, and the known hang's
         note where it applies (`runner.sweep.known_hang`)."""
-        print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
         from smol_dsl.runner.sweep import known_hang
 
+        print(f"smol-dsl {self.command}: {self.announcement(plan)} -> {out}", file=sys.stderr)
         hang = known_hang(training)
         if hang is not None:
             print(f"smol-dsl {self.command}: note: {hang}", file=sys.stderr)

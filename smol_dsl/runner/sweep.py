@@ -138,8 +138,7 @@ MJX_CPU_HANG = (
 def known_hang(plan: TrainingPlan) -> str | None:
     """`MJX_CPU_HANG` where the training is MJX on CPU devices that advance several runs at
     once (docs/scaling.md's known hang), else None."""
-    at_once = plan.runs_per_step or -(-len(plan.runs) // len(plan.devices))
-    if plan.config.physics == "mjx" and plan.devices[0].platform == "cpu" and at_once > 1:
+    if plan.config.physics == "mjx" and plan.devices[0].platform == "cpu" and plan.footprint.parallel_runs > 1:
         return MJX_CPU_HANG
     return None
 
