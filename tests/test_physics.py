@@ -155,6 +155,43 @@ def test_a_run_is_not_resumed_on_another_physics(tmp_path, monkeypatch, capsys, 
     assert {name: data for name, data in after.items() if name != LOCK_FILE} == before
 
 
+def test_robustness_on_another_physics_refuses_what_it_cannot_measure(tmp_path, library):
+    """`--other-physics` re-scores on a physics the run did not train on, whose ranges take
+    the run's final body; names are checked before any run is read."""
+    from smol_dsl import parse
+    from smol_dsl.rescoring.perturbations import (
+        Perturbations,
+        RobustnessError,
+        check_families,
+        check_perturbations,
+    )
+    from smol_dsl.rundir import read_run
+
+    strong = parse('name "strong"\nfinal 1e8\n0% .. 90%: constant 1e8\n90% .. 100%: tail\n')  # not on MJX
+    run = read_run(write_run(tmp_path / "strong", {**library, "strong": strong}, "strong", 0, {"max_fitness": 1.0}))
+    spring = read_run(write_run(tmp_path / "spring", library, "smol", 0, {"max_fitness": 1.0}))
+    only = dict(bodies=(), starts=0, float_path=False)
+    check_perturbations([spring], Perturbations(**only, physics=("mjx",)))  # the final body of SMOL: x1
+    assert Perturbations(**only, physics=("mjx",)).names == ["physics mjx"]
+    for perturbations, runs, message in [
+        (Perturbations(**only, physics=("spring",)), [spring], "trained on spring already"),
+        (
+            Perturbations(**only, physics=("mjx",)),
+            [run],
+            r"final body on mjx: thigh_joint.s gear factor would be 1e\+08, above",
+        ),
+    ]:
+        with pytest.raises(RobustnessError, match=message):
+            check_perturbations(runs, perturbations)
+    for physics, message in [
+        ("mjx", "a sequence of physics names"),
+        (("mjx", "mjx"), "given twice"),
+        (("x",), "unknown"),
+    ]:
+        with pytest.raises(RobustnessError, match=message):
+            check_families(Perturbations(**only, physics=physics))
+
+
 def test_mjx_on_a_cpu_with_several_runs_per_step_is_warned_of_the_known_hang(tmp_path, monkeypatch, capsys):
     """docs/scaling.md's known hang: the note comes before anything compiles, and only where
     a CPU device would advance several MJX runs at once."""
@@ -283,8 +320,19 @@ def test_the_feet_touch_the_same_ground_on_both_physics(mjx_walker):
 # -- a run on MJX: trains, resumes bit for bit, replays, reports ------------------------------
 
 
+@pytest.fixture(scope="module")
+def mjx_run(tmp_path_factory, library):
+    """`run --physics mjx` of human at the tests' size: (its directory, its result)."""
+    from small_runs import small_config
+
+    from smol_dsl.runner import run_experiment
+
+    out = tmp_path_factory.mktemp("mjx") / "whole"
+    return out, run_experiment("walker2d", library["human"], small_config(physics="mjx"), out_dir=out)
+
+
 @pytest.mark.slow
-def test_a_run_on_mjx_resumes_bit_for_bit_replays_its_elites_and_reports(tmp_path, library):
+def test_a_run_on_mjx_resumes_bit_for_bit_replays_its_elites_and_reports(mjx_run, tmp_path, library):
     """`run --physics mjx` at the tests' size, interrupted after a few phases and resumed, ends
     exactly as the same run uninterrupted (the engines are one: compiled once); its records
     name MJX; every elite replays to the archive bit for bit on MJX (a replay on spring would
@@ -296,19 +344,59 @@ def test_a_run_on_mjx_resumes_bit_for_bit_replays_its_elites_and_reports(tmp_pat
     from smol_dsl.runner import run_experiment
 
     config = small_config(physics="mjx")
-    whole = run_experiment("walker2d", library["human"], config, out_dir=tmp_path / "whole")
+    directory, whole = mjx_run
     run_experiment("walker2d", library["human"], config, out_dir=tmp_path / "cut", stop_after_generation=6)
     resumed = run_experiment("walker2d", library["human"], config, out_dir=tmp_path / "cut", resume=True)
     assert resumed.metrics == whole.metrics and whole.final["coverage"] > 0
     for name in ("metrics.csv", "phases.npz", "config.json"):
-        assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
-    ours, theirs = np.load(tmp_path / "cut" / "archive.npz"), np.load(tmp_path / "whole" / "archive.npz")
+        assert (tmp_path / "cut" / name).read_bytes() == (directory / name).read_bytes(), name
+    ours, theirs = np.load(tmp_path / "cut" / "archive.npz"), np.load(directory / "archive.npz")
     for name in theirs.files:
         np.testing.assert_array_equal(ours[name], theirs[name])
-    assert read_config(tmp_path / "whole" / "config.json").physics == "mjx"
-    environment = json.loads((tmp_path / "whole" / ENVIRONMENT_FILE).read_text())["environment"]
+    assert read_config(directory / "config.json").physics == "mjx"
+    environment = json.loads((directory / ENVIRONMENT_FILE).read_text())["environment"]
     assert environment["physics"]["name"] == "mjx"
-    assert replays_bit_for_bit(tmp_path / "whole") > 1
-    written = write_report([tmp_path / "whole"], tmp_path / "report", gaits=0)
+    assert replays_bit_for_bit(directory) > 1
+    written = write_report([directory], tmp_path / "report", gaits=0)
     assert "physics mjx" in (tmp_path / "report" / "table.md").read_text()
     assert "physics mjx (paper: spring)" in written.comparison.summary()
+
+
+@pytest.mark.slow
+def test_an_mjx_archive_re_scored_on_spring_is_what_spring_scores_it(mjx_run):
+    """`robustness --other-physics spring` on an MJX run: every elite in its final body, from
+    its seed's start, on spring, accounted for once; the same elites scored by spring's task
+    itself (its `scoring_fn`: another program than the runner's, so equal within rounding)
+    fill, keep and lose the same cells, and spring scores them otherwise than MJX did."""
+    import jax
+
+    from smol_dsl.rescoring.perturbations import Perturbations
+    from smol_dsl.rescoring.robustness import measure_robustness, reinserted
+    from smol_dsl.rundir import MEDIAN, load_archive, read_run
+    from smol_dsl.runner.engine import shared_task
+
+    directory, _ = mjx_run
+    run, archive = read_run(directory), load_archive(directory)
+    rows = measure_robustness([run], Perturbations(bodies=(), starts=0, float_path=False, physics=("spring",)))
+    assert [(row.perturbation, row.sample, row.samples) for row in rows] == [
+        ("physics spring", "on spring", 1),
+        ("physics spring", MEDIAN, 1),
+    ]
+    sample = rows[0]
+    cells = np.flatnonzero(archive.filled)
+    assert sample.kept + sample.moved + sample.collided + sample.died == sample.cells == len(cells) > 1
+
+    config = run.config
+    spring = shared_task("walker2d", config.episode_length, tuple(config.hidden_layer_sizes), "spring")
+    spring = spring.with_channels(run.channels)
+    genotypes = jax.tree.map(lambda leaf: np.asarray(leaf)[cells], archive.genotypes)
+    body = np.asarray(run.phase_bodies()[-1], np.float32)
+    scored, described = spring.scoring_fn()(genotypes, body, spring.episode_start(config.seed))
+    fitnesses = np.full(len(archive.filled), -np.inf, np.float32)
+    descriptors = np.zeros_like(np.asarray(archive.descriptors, np.float32))
+    fitnesses[cells], descriptors[cells] = np.asarray(scored), np.asarray(described)
+    holder, best = reinserted(archive.centroids, fitnesses, descriptors)
+    filled = best > -np.inf
+    assert (sample.filled, sample.kept) == (int(filled.sum()), int(np.sum(filled & (holder == np.arange(len(holder))))))
+    assert sample.max_fitness == pytest.approx(float(best.max()), rel=1e-4)
+    assert not np.allclose(np.asarray(scored), np.asarray(archive.fitnesses)[cells], rtol=1e-3)  # another physics

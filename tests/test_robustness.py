@@ -192,6 +192,9 @@ def test_the_report_refuses_measurements_of_other_runs(measured, robust_sweep, t
         (["--body", "gear=0.9", "--body", "gear=0.9,0.95,0.99"], "is given twice"),
         (["--starts", "2"], "give an odd number of starts (1 or 3)"),
         (["--starts", "1000000"], "at most 999 other starts"),
+        (["--other-physics", "spring"], "trained on spring already"),
+        (["--other-physics", "bullet"], "other physics: unknown physics 'bullet'; the physics are spring, mjx"),
+        (["--other-physics", "mjx", "--other-physics", "mjx"], "other physics mjx is given twice"),
     ],
 )
 def test_bad_perturbations_are_refused_before_anything_is_measured(robust_sweep, tmp_path, capsys, argv, message):

@@ -19,13 +19,15 @@ if TYPE_CHECKING:
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     from smol_dsl.rescoring.perturbations import DEFAULT_BODIES, DEFAULT_STARTS, MOST_SAMPLES
+    from smol_dsl.tasks.physics import PHYSICS_NAMES
 
     command = commands.add_parser(
         "robustness",
         help="re-score final archives under changes of body, start and program: what survives",
         description="Re-score every elite of the final archives of finished runs (sweep or run directories, "
         "searched recursively) under perturbations, each into a fresh archive: body factors around the final "
-        "body, the same body in another layout of the program (the float path), and other episode starts. "
+        "body, the same body in another layout of the program (the float path), other episode starts and, when asked, "
+        "another physics. "
         "Writes robustness.csv (per run, perturbation and sample: the cells still filled, the elites that kept "
         "their cell, moved, collided or died, and each perturbation's robust coverage, share and max fitness, "
         "QDax's corrected-repertoire median over its samples, an odd number of them), robustness.md and .tex "
@@ -59,6 +61,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     command.add_argument("--no-starts", action="store_true", help="no other episode starts")
     command.add_argument("--no-float-path", action="store_true", help="no re-scoring by another program layout")
+    command.add_argument(
+        "--other-physics",
+        action="append",
+        default=[],
+        metavar="PHYSICS",
+        help="also re-score every elite in its final body, from its own start, on this physics, one the runs did "
+        f"not train on ({', '.join(PHYSICS_NAMES)}): how much of an archive carries over to another simulator; "
+        "repeat for several",
+    )
     command.add_argument("--force", action="store_true", help="replace earlier robustness files in the output")
     command.add_argument(
         "--finished-only",
@@ -111,7 +122,9 @@ def perturbations_of(args: argparse.Namespace) -> Perturbations:
         () if args.no_body else tuple(body_factors(spec) for spec in args.body) if args.body else Perturbations.bodies
     )
     starts = 0 if args.no_starts else args.starts
-    return Perturbations(bodies=bodies, starts=starts, float_path=not args.no_float_path)
+    return Perturbations(
+        bodies=bodies, starts=starts, float_path=not args.no_float_path, physics=tuple(args.other_physics)
+    )
 
 
 def measure_robustness(args: argparse.Namespace) -> int:

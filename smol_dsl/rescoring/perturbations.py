@@ -1,6 +1,6 @@
 """What `smol-dsl robustness` perturbs, and the checks that refuse what cannot be measured
 before anything is: `Perturbations` (families of body factors per channel, other episode
-starts, the float path), their names as robustness.csv's `perturbation` column writes them,
+starts, the float path, other physics), their names as robustness.csv's `perturbation` column writes them,
 what measuring them costs (`estimate`), and `check_perturbations`. Imports no JAX.
 
 Each perturbation is a family of samples whose corrected archive takes every elite's median
@@ -37,6 +37,7 @@ MEMORY_SHARE = 0.5
 BODY = "body"
 FLOAT_PATH = "float path"
 STARTS = "starts"
+PHYSICS = "physics"
 
 
 class RobustnessError(UserInputError):
@@ -48,6 +49,11 @@ def body_name(channel: str, factors: Sequence[float]) -> str:
     x1.05` for one factor, `body gear x0.9-0.9944` for factors from 0.9 to 0.9944."""
     low, high = min(factors), max(factors)
     return f"{BODY} {channel} x{low:g}" + ("" if low == high else f"-{high:g}")
+
+
+def physics_name(physics: str) -> str:
+    """Another physics' name as robustness.csv's `perturbation` column writes it: `physics mjx`."""
+    return f"{PHYSICS} {physics}"
 
 
 def channel_of(perturbation: str) -> str | None:
@@ -62,11 +68,14 @@ class Perturbations:
     """What to re-score every final archive under: `bodies`, families of body factors as
     (channel name, factors) pairs, each factor multiplying that channel's final factor (a
     channel may have several families); `starts` other episode starts (0: none);
-    `float_path`, the same body in another program."""
+    `float_path`, the same body in another program; `physics`, other physics than the runs'
+    (`smol_dsl.tasks.physics`), each scoring the same body from the same start: how much of
+    an archive carries over to another simulator."""
 
     bodies: tuple[tuple[str, tuple[float, ...]], ...] = DEFAULT_BODIES
     starts: int = DEFAULT_STARTS
     float_path: bool = True
+    physics: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
@@ -74,18 +83,22 @@ class Perturbations:
         return (
             [body_name(_canonical(channel), factors) for channel, factors in self.bodies]
             + ([FLOAT_PATH] if self.float_path else [])
+            + [physics_name(physics) for physics in self.physics]
             + ([STARTS] if self.starts else [])
         )
 
     @property
     def samples(self) -> int:
-        """How many times each elite is scored: every body factor, every start, the float path."""
-        return sum(len(factors) for _, factors in self.bodies) + self.starts + int(self.float_path)
+        """How many times each elite is scored: every body factor, every start, the float
+        path, every other physics."""
+        return sum(len(factors) for _, factors in self.bodies) + self.starts + int(self.float_path) + len(self.physics)
 
     @property
     def largest(self) -> int:
         """The most samples of one perturbation: how many scores of each elite a median holds."""
-        return max([len(factors) for _, factors in self.bodies] + [self.starts, int(self.float_path)])
+        return max(
+            [len(factors) for _, factors in self.bodies] + [self.starts, int(self.float_path), int(bool(self.physics))]
+        )
 
 
 def _canonical(name: str) -> str:
@@ -134,8 +147,9 @@ def check_perturbations(runs: Sequence[RunRecord], perturbations: Perturbations)
     MOST_SAMPLES (or 0), a body family that is empty, has an even number of factors or over
     MOST_SAMPLES, mixes x1 with changes, or holds a factor that is not finite and above 0 or
     that this channel has already, a channel a run's schedule lacks, a perturbed body outside
-    what the task's physics takes (`smol-dsl check --task`'s ranges), and scores to hold
-    for the medians that would take over MEMORY_SHARE of the machine's memory."""
+    what the task's physics takes (`smol-dsl check --task`'s ranges), another physics that is
+    unknown, given twice, a run's own, or one that does not take a run's final body, and
+    scores to hold for the medians that would take over MEMORY_SHARE of the machine's memory."""
     from smol_dsl.language.channels import Channel
 
     if not runs:
@@ -152,17 +166,24 @@ def check_perturbations(runs: Sequence[RunRecord], perturbations: Perturbations)
         channel = Channel.parse(name)
         for run in runs:
             _check_run_body(run, channel, factors)
+    for physics in perturbations.physics:
+        for run in runs:
+            _check_run_physics(run, physics)
     _check_memory(estimate(runs, perturbations))
 
 
 def check_families(perturbations: Perturbations) -> None:
     """The checks of `check_perturbations` that need no runs (a RobustnessError): the start
-    count, each body family's factors, and that there is something to measure."""
+    count, each body family's factors, the other physics' names, and that there is something
+    to measure."""
     from smol_dsl.language.channels import Channel
 
     _check_starts(perturbations.starts)
-    if not (perturbations.bodies or perturbations.starts or perturbations.float_path):
-        raise RobustnessError("nothing to measure: give at least one body family, some starts or the float path")
+    _check_physics_names(perturbations.physics)
+    if not (perturbations.bodies or perturbations.starts or perturbations.float_path or perturbations.physics):
+        raise RobustnessError(
+            "nothing to measure: give at least one body family, some starts, the float path or another physics"
+        )
     seen: dict[Channel, set[float]] = {}
     for name, factors in perturbations.bodies:
         try:
@@ -229,6 +250,36 @@ def _check_run_body(run: RunRecord, channel: Channel, factors: Sequence[float]) 
                 f"give factors closer to 1 (`smol-dsl check --task {run.task} --physics {run.config.physics}` shows "
                 "the ranges)"
             )
+
+
+def _check_physics_names(names: object) -> None:
+    from smol_dsl.tasks.physics import physics_problem
+
+    if isinstance(names, str) or not isinstance(names, (tuple, list)):
+        raise RobustnessError(f"physics {names!r}: a sequence of physics names, e.g. ('mjx',)")
+    for physics in names:
+        problem = physics_problem(physics)
+        if problem is not None:
+            raise RobustnessError(f"other physics: {problem}")
+    twice = next((physics for number, physics in enumerate(names) if physics in names[:number]), None)
+    if twice is not None:
+        raise RobustnessError(f"other physics {twice} is given twice; give each physics once")
+
+
+def _check_run_physics(run: RunRecord, physics: str) -> None:
+    if physics == run.config.physics:
+        raise RobustnessError(
+            f"other physics {physics}: {run.directory} trained on {physics} already; the float path re-scores "
+            "its archive on its own physics in another program, another physics is one the run did not train on"
+        )
+    final = dict(zip(run.channels, run.phase_bodies()[-1].tolist(), strict=True))
+    problem = task_spec(run.task).body_problem(final, physics)
+    if problem is not None:
+        raise RobustnessError(
+            f"other physics {physics}: {run.directory}'s final body on {physics}: {problem}; measure such runs "
+            f"without {physics} (`smol-dsl check --task {run.task} "
+            f"--physics {physics}` shows the ranges)"
+        )
 
 
 def _check_memory(cost: Estimate) -> None:

@@ -16,6 +16,9 @@ robust ones (the row whose sample is `median`).
 - `float path`: the same body in another layout of the program (a batch of twice the
   run's, elites in the order of the filled cells, as the runner's own re-evaluation lays
   them out), as another machine would score it;
+- `physics NAME`: the same body, from the same start, on another physics than the run
+  trained on (`--physics`), in the same layout: how much of the archive carries over to
+  another simulator;
 - `starts`: other episode starts drawn from the task's reset distribution, K of them.
 
 Bodies and starts are scored by the very program the run trained with, rebuilt from
@@ -47,6 +50,7 @@ from smol_dsl.rescoring.perturbations import (
     Perturbations,
     body_name,
     check_perturbations,
+    physics_name,
 )
 from smol_dsl.rundir import MEDIAN, RobustnessRow, load_archive
 
@@ -260,6 +264,11 @@ def _samples(program: ScoringProgram, slots: _Slots, perturbations: Perturbation
         chunks = list(_cell_chunks(slots, other.batch_size))
         scorer = _scorer(other, slots, slots.bodies, lambda: slots.starts, chunks)
         samples.append((FLOAT_PATH, [(f"batch {other.batch_size}", math.nan, scorer)]))
+    for physics in perturbations.physics:
+        simulator = _physics_engine(program, physics)
+        starts = functools.partial(_own_starts, simulator, slots)
+        scorer = _scorer(simulator, slots, slots.bodies, starts, in_lanes)
+        samples.append((physics_name(physics), [(f"on {physics}", math.nan, scorer)]))
     if perturbations.starts:
         sampled = []
         for number in range(perturbations.starts):  # each start drawn when it is scored: K of them are not held
@@ -275,6 +284,22 @@ def _float_path_engine(program: ScoringProgram) -> Engine:
 
     config = dataclasses.replace(program.config, batch_size=2 * program.config.batch_size)
     return shared_engine(config.task, config, program.devices, program.runs_per_step, program.runs, program.channels)
+
+
+def _physics_engine(program: ScoringProgram, physics: str) -> Engine:
+    """The program on another physics: the same task, settings, channels and layout."""
+    from smol_dsl.runner.engine import shared_engine
+
+    config = dataclasses.replace(program.config, physics=physics)
+    return shared_engine(config.task, config, program.devices, program.runs_per_step, program.runs, program.channels)
+
+
+def _own_starts(engine: Engine, slots: _Slots) -> Any:
+    """Every position's own episode start (its seed's), on `engine`'s physics."""
+    from smol_dsl.runner.engine import stack_runs
+
+    made = {seed: engine.task.episode_start(seed) for seed in dict.fromkeys(run.config.seed for run in slots.runs)}
+    return stack_runs([made[run.config.seed] for run in slots.runs])
 
 
 def _other_starts(slots: _Slots, number: int) -> Any:

@@ -1,6 +1,6 @@
 """The figure of `smol-dsl robustness`'s measurements: what survives, median and IQR over
 seeds per schedule, against the body factor for each perturbed channel (all of its families
-on one axis), and for the other perturbations (the float path, other starts) side by side
+on one axis), and for the other perturbations (the float path, other physics, other starts) side by side
 (`robustness_figure`; `robustness_images` as robustness.png and .pdf). Imports no JAX.
 """
 
@@ -31,7 +31,7 @@ def robustness_figure(robustness: Robustness) -> Figure:
     """What survives, median (line or point) and IQR (band or bar) over seeds, one colour per
     schedule: per body channel, the elites that kept their cell and the cells still filled
     against the factor (every factor of its families); for the others (the float path, other
-    starts), the same shares, averaged over each run's samples, side by side."""
+    physics, other starts), the same shares, averaged over each run's samples, side by side."""
     channels = robustness.channels
     others = [p for p in robustness.perturbations if not any(p in families for families in channels.values())]
     rows = len(channels) + (1 if others else 0)

@@ -224,7 +224,10 @@ def robustness_html(robustness: Robustness) -> str:
             f"<p>p-value of &ldquo;{esc(alternative)}&rdquo; (Holm-adjusted in brackets)</p>"
         )
         parts.append(table.html(table_id=f"robustness-pvalues-{number}") + f"<ul>{notes}</ul>")
-    caption = "What survives a change of body (against the factor), of program (the float path) and of episode start."
+    caption = (
+        "What survives a change of body (against the factor), of program (the float path), of physics (where "
+        "measured) and of episode start."
+    )
     parts.append(
         f'<figure id="robustness-figure"><img src="robustness.png" alt="{esc(caption)}" style="max-width: 100%">'
         f'<figcaption>{esc(caption)} (<a href="robustness.pdf">PDF</a>)</figcaption></figure>'

@@ -44,7 +44,7 @@ class RobustnessRow:
     directory: str  # the run directory, relative to robustness.csv's where it is below it
     schedule: str  # the schedule's name, as the report groups runs
     seed: int
-    perturbation: str  # "body CHANNEL xLOW-HIGH", "float path" or "starts"
+    perturbation: str  # "body CHANNEL xLOW-HIGH", "float path", "physics NAME" or "starts"
     sample: str  # "x0.99", "batch 256", "start 3", or MEDIAN
     factor: float  # the body factor of a "body" sample; NaN otherwise
     samples: int  # the perturbation's samples (odd): the median row's median is over them
