@@ -124,7 +124,76 @@ def test_report_and_robustness_refuse_runs_of_two_physics_unless_allowed(tmp_pat
     with pytest.raises(ReportError, match=r"not all produced under one environment: .*\(physics name mjx -> spring; "):
         load_runs([tmp_path])
     groups = load_runs([tmp_path], allow_mixed_environments=True)
-    assert sorted(run.config.physics for run in groups["SMOL"]) == ["mjx", "spring"]
+    assert {name: [run.config.physics for run in runs] for name, runs in groups.items()} == {
+        "SMOL on spring": ["spring"],
+        "SMOL on mjx": ["mjx"],
+    }
+
+
+def test_a_report_across_physics_compares_each_schedule_on_each_physics_and_pools_none(tmp_path, library):
+    """Asked to (--allow-mixed-environments), a report of runs on two physics groups them by
+    schedule and physics, so that the same seed is in each and every test is between two
+    conditions of one simulator each; robustness.csv measured one physics at a time joins
+    under the report's names."""
+    from smol_dsl.results.report import write_report
+    from smol_dsl.results.robustness import robustness_for_report
+    from smol_dsl.rundir import MEDIAN, RobustnessRow
+    from smol_dsl.rundir.robustness import robustness_csv
+
+    for physics in ("mjx", "spring"):
+        for schedule in ("smol", "vanilla"):
+            for seed in (0, 1, 2, 3):
+                score = {
+                    "max_fitness": 10.0 * seed + (100 if physics == "mjx" else 0) + (5 if schedule == "smol" else 0)
+                }
+                run = write_run(
+                    tmp_path / physics / f"{schedule}-{seed}", library, schedule, seed, score, physics=physics
+                )
+                (run / ENVIRONMENT_FILE).write_text(environment_text(describe_environment([], physics=physics)))
+    conditions = ["SMOL on spring", "SMOL on mjx", "Vanilla MAP-Elites on spring", "Vanilla MAP-Elites on mjx"]
+    groups = load_runs([tmp_path], allow_mixed_environments=True)
+    assert list(groups) == conditions and all(len(runs) == 4 for runs in groups.values())
+    assert all({run.config.physics for run in groups[name]} == {name.rsplit(" ", 1)[1]} for name in conditions)
+    written = write_report([tmp_path], tmp_path / "report", metric="max_fitness", allow_mixed_environments=True)
+    table = (tmp_path / "report" / "table.md").read_text()
+    assert "16 runs of walker2d: 2 schedules on spring and mjx x 4 seeds" in table
+    assert "physics spring and mjx" in table
+    assert list(written.table.pvalues) == conditions  # every condition a row and a column: no paper columns
+    assert written.table.pvalues["SMOL on spring"]["SMOL on mjx"] < 0.05  # 100 apart, by physics
+
+    def rows(physics: str) -> list[RobustnessRow]:  # as `robustness` of one physics' runs names them
+        measured = []
+        for run in [run for name in conditions if name.endswith(physics) for run in groups[name]]:
+            for sample in ("x1", MEDIAN):
+                measured.append(
+                    RobustnessRow(
+                        str(run.directory),
+                        run.schedule,
+                        run.seed,
+                        "body gear x1",
+                        sample,
+                        1.0,
+                        1,
+                        4,
+                        4,
+                        4,
+                        0,
+                        0,
+                        0,
+                        12.5,
+                        1.0,
+                    )
+                )
+        return measured
+
+    for physics in ("mjx", "spring"):
+        (tmp_path / physics / "robustness.csv").write_text(robustness_csv(rows(physics)))
+    robustness = robustness_for_report([tmp_path / p / "robustness.csv" for p in ("mjx", "spring")], groups, "walker2d")
+    assert robustness.schedules == conditions
+    assert {row.schedule for row in robustness.rows} == set(conditions)
+    assert robustness.per_seed("body gear x1", MEDIAN, "kept") == {
+        name: {0: 4.0, 1: 4.0, 2: 4.0, 3: 4.0} for name in conditions
+    }
 
 
 def test_explore_refuses_runs_of_two_physics_unless_allowed(tmp_path, library):

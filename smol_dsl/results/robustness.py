@@ -8,6 +8,7 @@ together. The tables are `results.robustness_tables`'s, the figure
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
@@ -170,7 +171,15 @@ def robustness_for_report(paths: Sequence[Path], groups: Mapping[str, Sequence[R
             f"{source[foreign[0]]} measures {foreign[0]}{more}, which is not among the runs reported on: report on "
             f"every run it measures, or {again}"
         )
-    return robustness_of(rows, task, list(groups))
+    return robustness_of(by_condition(rows, groups), task, list(groups))
+
+
+def by_condition(rows: Sequence[RobustnessRow], groups: Mapping[str, Sequence[RunRecord]]) -> list[RobustnessRow]:
+    """The rows with each run's `schedule` the name of its group among `groups` (the
+    report's conditions: `SMOL on mjx` where the runs span several physics), found by its
+    directory."""
+    condition = {str(Path(run.directory).resolve()): name for name, runs in groups.items() for run in runs}
+    return [dataclasses.replace(row, schedule=condition[str(Path(row.directory).resolve())]) for row in rows]
 
 
 @dataclass(frozen=True)
@@ -302,7 +311,7 @@ def measure_and_write(
         for run in left_out:
             progress(f"left out: {run}")
         progress(f"measuring {estimate(runs, perturbations)}")
-    rows = measure_robustness(runs, perturbations, progress=progress)
+    rows = by_condition(measure_robustness(runs, perturbations, progress=progress), groups)
     robustness = robustness_of(rows, runs[0].task, list(groups))
     files = robustness_files(robustness, Path(out_dir))
     return RobustnessReport(robustness, write_files(out_dir, files), left_out)

@@ -31,6 +31,7 @@ from smol_dsl.rundir import (
 )
 from smol_dsl.tasks import task_spec
 from smol_dsl.tasks.anatomy import resolved_names, same_body
+from smol_dsl.tasks.physics import PHYSICS_NAMES
 
 if TYPE_CHECKING:
     from smol_dsl.tasks.anatomy import Anatomy
@@ -70,7 +71,10 @@ def find_run_directories(paths: Iterable[str | Path]) -> list[Path]:
 
 
 def load_runs(paths: Sequence[str | Path], allow_mixed_environments: bool = False) -> dict[str, list[RunRecord]]:
-    """Finished runs below `paths`, grouped by schedule name in the paper's order.
+    """Finished runs below `paths`, grouped by schedule name in the paper's order; where the
+    runs were simulated on several physics (`allow_mixed_environments` let them through),
+    by schedule and physics (`SMOL on mjx`, `condition_name`), so that no group pools two
+    simulators and a seed may be in each.
 
     Every run directory is read and checked first (`read_run`); then refuses (ReportError)
     no runs, unfinished runs, runs of several tasks or settings, runs produced under
@@ -93,8 +97,21 @@ def load_runs(paths: Sequence[str | Path], allow_mixed_environments: bool = Fals
         _check_same_environment(runs)
     groups = _group_by_schedule(runs)
     _check_final_bodies(groups)
-    ordered = sorted(groups, key=lambda name: (ORDER.index(name) if name in ORDER else len(ORDER), name))
+    ordered = sorted(groups, key=lambda name: _paper_order(groups[name][0]))
     return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
+
+
+def condition_name(run: RunRecord, several_physics: bool) -> str:
+    """What a report calls the condition of a run: its schedule's name, and where the runs
+    reported on were simulated on several physics, the run's physics too (`SMOL on mjx`)."""
+    return f"{run.schedule} on {run.config.physics}" if several_physics else run.schedule
+
+
+def _paper_order(run: RunRecord) -> tuple[int, str, int]:
+    """Where a run's condition goes: the paper's order of schedules, then the others by
+    name; each schedule on its physics in the order of `PHYSICS_NAMES` (spring first)."""
+    place = ORDER.index(run.schedule) if run.schedule in ORDER else len(ORDER)
+    return place, run.schedule, PHYSICS_NAMES.index(run.config.physics)
 
 
 def _read_runs(directories: Sequence[Path]) -> list[RunRecord]:
@@ -198,13 +215,15 @@ def environment_mixing(runs: Sequence[RunRecord]) -> list[str]:
 
 
 def _group_by_schedule(runs: Sequence[RunRecord]) -> dict[str, list[RunRecord]]:
-    """The runs by schedule name, in the order given; refuses (ReportError) two schedules
-    with one name and a run whose schedule and seed another run has already."""
+    """The runs by condition (`condition_name`), in the order given; refuses (ReportError)
+    two schedules with one name and a run whose condition and seed another run has already."""
+    several_physics = len({run.config.physics for run in runs}) > 1
     groups: dict[str, list[RunRecord]] = {}
+    named: dict[str, RunRecord] = {}  # the first run of each schedule name, on any physics
     for run in runs:
-        group = groups.setdefault(run.schedule, [])
+        _check_same_schedule(named.setdefault(run.schedule, run), run)
+        group = groups.setdefault(condition_name(run, several_physics), [])
         if group:
-            _check_same_schedule(group[0], run)
             _check_new_seed(group, run)
         group.append(run)
     return groups
@@ -230,7 +249,8 @@ def _check_new_seed(group: Sequence[RunRecord], run: RunRecord) -> None:
             else f"seeds {twin.seed} and {run.seed} are the same run (JAX takes seeds modulo 2**32)"
         )
         raise ReportError(
-            f"{run.schedule} {same} ({twin.directory} and {run.directory}); each run must count once: "
+            f"{run.schedule} on {run.config.physics}: {same} ({twin.directory} and {run.directory}); each run "
+            "must count once: "
             "leave one of them out"
         )
 
@@ -291,12 +311,16 @@ def runs_described(groups: Mapping[str, Sequence[RunRecord]]) -> list[tuple[str,
     runs = [run for group in groups.values() for run in group]
     config = runs[0].config
     seeds = sorted({run.seed for run in runs})
+    simulated = [name for name in PHYSICS_NAMES if any(run.config.physics == name for run in runs)]
+    physics = " and ".join(simulated)
+    schedules = counted(len({run.schedule for run in runs}), "schedule") + (
+        f" on {physics}" if len(simulated) > 1 else ""
+    )
     seeds_text = ", ".join(str(seed) for seed in seeds[:10]) + (f" .. {seeds[-1]}" if len(seeds) > 10 else "")
     lines = [
         (
             "runs",
-            f"{counted(len(runs), 'run')} of {config.task}: {counted(len(groups), 'schedule')} x "
-            f"{counted(len(seeds), 'seed')} ({seeds_text})",
+            f"{counted(len(runs), 'run')} of {config.task}: {schedules} x {counted(len(seeds), 'seed')} ({seeds_text})",
         ),
         (
             "budget",
@@ -306,7 +330,7 @@ def runs_described(groups: Mapping[str, Sequence[RunRecord]]) -> list[tuple[str,
         ),
         (
             "settings",
-            f"physics {config.physics}; preset {config.preset}; {config.num_centroids:,} cells "
+            f"physics {physics}; preset {config.preset}; {config.num_centroids:,} cells "
             f"({config.num_init_cvt_samples:,} CVT samples); "
             f"policy hidden layers {list(config.hidden_layer_sizes)}; iso sigma {config.iso_sigma:g}, line sigma "
             f"{config.line_sigma:g}",
