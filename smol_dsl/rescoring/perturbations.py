@@ -1,7 +1,8 @@
 """What `smol-dsl robustness` perturbs, and the checks that refuse what cannot be measured
 before anything is: `Perturbations` (families of body factors per channel, other episode
-starts, the float path, other physics), their names as robustness.csv's `perturbation` column writes them,
-what measuring them costs (`estimate`), and `check_perturbations`. Imports no JAX.
+starts, the float path, other physics), their names as robustness.csv's `perturbation`
+column writes them, what measuring them costs (`estimate`), and `check_perturbations`.
+Imports no JAX.
 
 Each perturbation is a family of samples whose corrected archive takes every elite's median
 over them (`smol_dsl.rescoring.robustness.median_of_samples`), so a family has an odd number
@@ -277,8 +278,7 @@ def _check_run_physics(run: RunRecord, physics: str) -> None:
     if problem is not None:
         raise RobustnessError(
             f"other physics {physics}: {run.directory}'s final body on {physics}: {problem}; measure such runs "
-            f"without {physics} (`smol-dsl check --task {run.task} "
-            f"--physics {physics}` shows the ranges)"
+            f"without {physics} (`smol-dsl check --task {run.task} --physics {physics}` shows the ranges)"
         )
 
 

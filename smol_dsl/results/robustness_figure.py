@@ -1,7 +1,8 @@
 """The figure of `smol-dsl robustness`'s measurements: what survives, median and IQR over
 seeds per schedule, against the body factor for each perturbed channel (all of its families
-on one axis), and for the other perturbations (the float path, other physics, other starts) side by side
-(`robustness_figure`; `robustness_images` as robustness.png and .pdf). Imports no JAX.
+on one axis), and for the other perturbations (the float path, other physics, other starts)
+side by side (`robustness_figure`; `robustness_images` as robustness.png and .pdf). Imports
+no JAX.
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def load_runs(paths: Sequence[str | Path], allow_mixed_environments: bool = Fals
     _check_same_settings(runs)
     if not allow_mixed_environments:
         _check_same_environment(runs)
-    groups = _group_by_schedule(runs)
+    groups = _group_by_condition(runs)
     _check_final_bodies(groups)
     ordered = sorted(groups, key=lambda name: _paper_order(groups[name][0]))
     return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
@@ -214,7 +214,7 @@ def environment_mixing(runs: Sequence[RunRecord]) -> list[str]:
     return mixing
 
 
-def _group_by_schedule(runs: Sequence[RunRecord]) -> dict[str, list[RunRecord]]:
+def _group_by_condition(runs: Sequence[RunRecord]) -> dict[str, list[RunRecord]]:
     """The runs by condition (`condition_name`), in the order given; refuses (ReportError)
     two schedules with one name and a run whose condition and seed another run has already."""
     several_physics = len({run.config.physics for run in runs}) > 1

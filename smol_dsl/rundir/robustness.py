@@ -42,7 +42,7 @@ class RobustnessRow:
     """One re-scoring of one run's final archive (see the module's docstring)."""
 
     directory: str  # the run directory, relative to robustness.csv's where it is below it
-    schedule: str  # the schedule's name, as the report groups runs
+    schedule: str  # the condition, as the report groups runs: the schedule's name (`SMOL on mjx` across physics)
     seed: int
     perturbation: str  # "body CHANNEL xLOW-HIGH", "float path", "physics NAME" or "starts"
     sample: str  # "x0.99", "batch 256", "start 3", or MEDIAN
