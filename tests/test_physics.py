@@ -158,6 +158,9 @@ def test_a_report_across_physics_compares_each_schedule_on_each_physics_and_pool
     table = (tmp_path / "report" / "table.md").read_text()
     assert "16 runs of walker2d: 2 schedules on spring and mjx x 4 seeds" in table
     assert "physics spring and mjx" in table
+    (mixing,) = written.environment_mixing  # the 8 runs of the other physics differ alike: one sentence
+    assert "(and 7 other runs alike) was started under another environment than" in mixing
+    assert "physics name spring -> mjx" in mixing and table.count("physics name spring -> mjx") == 1
     assert list(written.table.pvalues) == conditions  # every condition a row and a column: no paper columns
     assert written.table.pvalues["SMOL on spring"]["SMOL on mjx"] < 0.05  # 100 apart, by physics
 

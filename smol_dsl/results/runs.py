@@ -192,12 +192,14 @@ def _check_same_environment(runs: Sequence[RunRecord]) -> None:
 
 
 def environment_mixing(runs: Sequence[RunRecord]) -> list[str]:
-    """Every way the runs' environments (environment.json) differ, one sentence each: a run
-    started under another record than the first run that has one, a run resumed under another
-    environment (its recorded changes), and a run with no record, or one whose start is unknown,
-    beside runs that have one. Empty when the runs share one record (or none has any)."""
+    """Every way the runs' environments (environment.json) differ, one sentence each: the runs
+    started under another record than the first run that has one (one sentence per set of
+    differences, naming its first run and how many share it), a run resumed under another
+    environment (its recorded changes), and a run with no record, or one whose start is
+    unknown, beside runs that have one. Empty when the runs share one record (or none has any)."""
     recorded = [run for run in runs if run.environment]
     mixing = []
+    started: dict[str, list[Path]] = {}  # each set of differences from the first record: its runs
     for run in runs:
         if not run.environment and recorded:
             what = "has no environment.json" if run.environment is None else "was started under an unknown environment"
@@ -205,12 +207,14 @@ def environment_mixing(runs: Sequence[RunRecord]) -> list[str]:
         elif run.environment and run is not recorded[0]:
             differences = environment_differences(dict(recorded[0].environment), dict(run.environment))
             if differences:
-                mixing.append(
-                    f"{run.directory} was started under another environment than {recorded[0].directory} "
-                    f"({'; '.join(differences)})"
-                )
+                started.setdefault("; ".join(differences), []).append(run.directory)
         for change in run.environment_changes:
             mixing.append(f"{run.directory} was resumed under another environment ({'; '.join(change['differences'])})")
+    for differences, directories in started.items():
+        more = f" (and {counted(len(directories) - 1, 'other run')} alike)" if len(directories) > 1 else ""
+        mixing.append(
+            f"{directories[0]}{more} was started under another environment than {recorded[0].directory} ({differences})"
+        )
     return mixing
 
 
