@@ -162,6 +162,7 @@ def test_a_report_across_physics_compares_each_schedule_on_each_physics_and_pool
     assert "(and 7 other runs alike) was started under another environment than" in mixing
     assert "physics name spring -> mjx" in mixing and table.count("physics name spring -> mjx") == 1
     assert list(written.table.pvalues) == conditions  # every condition a row and a column: no paper columns
+    assert written.comparison is None and not (tmp_path / "report" / "paper-comparison.md").exists()
     assert written.table.pvalues["SMOL on spring"]["SMOL on mjx"] < 0.05  # 100 apart, by physics
 
     def rows(physics: str) -> list[RobustnessRow]:  # as `robustness` of one physics' runs names them

@@ -209,9 +209,12 @@ def settings_deviations(runs: list[RunRecord]) -> list[str]:
 
 def compare_with_paper(table: PValueTable, groups: dict[str, list[RunRecord]]) -> Comparison | None:
     """Our table beside the paper's, or None where the paper has no table for the task or
-    metric."""
+    metric, or where the runs were simulated on several physics (their conditions are
+    schedules on a physics, `SMOL on mjx`, and the paper's table is of one)."""
     paper = paper_table(table.task)
     if paper is None or paper.metric != table.metric:
+        return None
+    if len({run.config.physics for group in groups.values() for run in group}) > 1:
         return None
     scores = {name: [float(run.final[table.metric]) for run in group] for name, group in groups.items()}
     cells = []
