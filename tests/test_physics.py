@@ -169,25 +169,19 @@ def test_a_report_across_physics_compares_each_schedule_on_each_physics_and_pool
         measured = []
         for run in [run for name in conditions if name.endswith(physics) for run in groups[name]]:
             for sample in ("x1", MEDIAN):
-                measured.append(
-                    RobustnessRow(
-                        str(run.directory),
-                        run.schedule,
-                        run.seed,
-                        "body gear x1",
-                        sample,
-                        1.0,
-                        1,
-                        4,
-                        4,
-                        4,
-                        0,
-                        0,
-                        0,
-                        12.5,
-                        1.0,
-                    )
+                counts = dict(samples=1, cells=4, filled=4, kept=4, moved=0, collided=0, died=0)
+                row = RobustnessRow(
+                    str(run.directory),
+                    run.schedule,
+                    run.seed,
+                    "body gear x1",
+                    sample,
+                    1.0,
+                    **counts,
+                    coverage=12.5,
+                    max_fitness=1.0,
                 )
+                measured.append(row)
         return measured
 
     for physics in ("mjx", "spring"):
@@ -267,14 +261,22 @@ def test_robustness_on_another_physics_refuses_what_it_cannot_measure(tmp_path, 
 
 def test_mjx_on_a_cpu_with_several_runs_per_step_is_warned_of_the_known_hang(tmp_path, monkeypatch, capsys):
     """docs/scaling.md's known hang: the note comes before anything compiles, and only where
-    a CPU device would advance several MJX runs at once."""
+    a CPU device would advance several MJX runs at once under a jaxlib that hangs there."""
+    from smol_dsl.runner import sweep as runner_sweep
+
     monkeypatch.chdir(tmp_path)
     sweep = ["sweep", "walker2d", "vanilla", "--seeds", "2", "--dry-run", "--no-measure", "--devices", "1"]
+    monkeypatch.setattr(runner_sweep, "jaxlib_version", lambda: (0, 10, 2))
     code, err = cli([*sweep, "--physics", "mjx", "--runs-per-step", "2"], capsys)
-    assert code == 0 and "note: MJX on a CPU with several runs per step has been seen to hang" in err
+    assert code == 0 and "note: MJX on a CPU with several runs per step hangs under jaxlib 0.10.2" in err
+    assert "use the default, one run at a time, or jax 0.12 or later" in err
     for others in (["--physics", "mjx"], ["--runs-per-step", "2"]):  # one at a time; spring
         code, err = cli([*sweep, *others], capsys)
         assert code == 0 and "hang" not in err, others
+    monkeypatch.setattr(runner_sweep, "jaxlib_version", lambda: (0, 12, 0))
+    code, err = cli([*sweep, "--physics", "mjx", "--runs-per-step", "2"], capsys)
+    assert code == 0 and "hang" not in err
+    assert runner_sweep.MJX_CPU_HANG_FIXED == (0, 12)
 
 
 # -- MJX's fields, and what each channel changes (real MJX physics) ---------------------------

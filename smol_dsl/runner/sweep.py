@@ -129,17 +129,34 @@ def plan_training(
     return TrainingPlan(task, config, every, runs, devices, part, footprint, chosen, directory, is_sweep)
 
 
-MJX_CPU_HANG = (
-    "MJX on a CPU with several runs per step has been seen to hang inside XLA (10 walker2d runs of 128 at once; "
-    "docs/scaling.md, 'A known hang'): if the progress stops with the CPU idle, use the default, one run at a time"
-)
+MJX_CPU_HANG_FIXED = (0, 12)
+"""The first jaxlib where MJX on a CPU with several runs per step was seen to finish
+(docs/scaling.md, 'A known hang': jaxlib 0.10.2 hangs, 0.12.0.1 does not)."""
+
+
+def jaxlib_version() -> tuple[int, ...]:
+    """The installed jaxlib's version as numbers (0.10.2 -> (0, 10, 2))."""
+    import jaxlib
+
+    return tuple(int(part) for part in jaxlib.__version__.split(".")[:3] if part.isdigit())
 
 
 def known_hang(plan: TrainingPlan) -> str | None:
-    """`MJX_CPU_HANG` where the training is MJX on CPU devices that advance several runs at
-    once (docs/scaling.md's known hang), else None."""
-    if plan.config.physics == "mjx" and plan.devices[0].platform == "cpu" and plan.footprint.parallel_runs > 1:
-        return MJX_CPU_HANG
+    """A note where the training is MJX on CPU devices that advance several runs at once,
+    under a jaxlib older than MJX_CPU_HANG_FIXED (docs/scaling.md's known hang), else None."""
+    if (
+        plan.config.physics == "mjx"
+        and plan.devices[0].platform == "cpu"
+        and plan.footprint.parallel_runs > 1
+        and jaxlib_version() < MJX_CPU_HANG_FIXED
+    ):
+        fixed = ".".join(str(part) for part in MJX_CPU_HANG_FIXED)
+        return (
+            f"MJX on a CPU with several runs per step hangs under jaxlib {'.'.join(map(str, jaxlib_version()))}: its "
+            "batched Cholesky waits on XLA:CPU threads that other Cholesky calls hold (docs/scaling.md, 'A known "
+            f"hang'); if the progress stops with the CPU idle, use the default, one run at a time, or jax {fixed} "
+            "or later (Python 3.12 and later)"
+        )
     return None
 
 
