@@ -240,7 +240,7 @@ def _check_run_body(run: RunRecord, channel: Channel, factors: Sequence[float]) 
             f"body {channel.name}: {run.directory}'s schedule ({run.schedule}) has no {channel.name} channel (its "
             f"channels: {', '.join(c.name for c in run.channels)}); perturb a channel every run's schedule has"
         )
-    final = dict(zip(run.channels, run.phase_bodies()[-1].tolist(), strict=True))
+    final = run.last_phase_body()
     spec = task_spec(run.task)
     for factor in factors:
         problem = spec.body_problem({**final, channel: final[channel] * factor}, run.config.physics)
@@ -273,7 +273,7 @@ def _check_run_physics(run: RunRecord, physics: str) -> None:
             f"other physics {physics}: {run.directory} trained on {physics} already; the float path re-scores "
             "its archive on its own physics in another program, another physics is one the run did not train on"
         )
-    final = dict(zip(run.channels, run.phase_bodies()[-1].tolist(), strict=True))
+    final = run.last_phase_body()
     problem = task_spec(run.task).body_problem(final, physics)
     if problem is not None:
         raise RobustnessError(

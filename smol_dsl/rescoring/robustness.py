@@ -235,7 +235,7 @@ def median_of_samples(fitnesses: np.ndarray, descriptors: np.ndarray) -> tuple[n
 
 def _final_body(run: RunRecord, channels: Sequence[Channel]) -> list[float]:
     """The run's final body as a row of the program's channels (1 where its schedule has none)."""
-    final = dict(zip(run.channels, run.phase_bodies()[-1].tolist(), strict=True))
+    final = run.last_phase_body()
     return [final.get(channel, 1.0) for channel in channels]
 
 

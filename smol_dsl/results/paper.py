@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from smol_dsl.errors import counted
 from smol_dsl.results.conditions import BY_SCHEDULE, PAPER_SEEDS
+from smol_dsl.results.runs import simulated_physics
 from smol_dsl.results.statistics import SIGNIFICANCE, latex_escape
 from smol_dsl.rundir.presets import preset_config
 
@@ -214,7 +215,7 @@ def compare_with_paper(table: PValueTable, groups: dict[str, list[RunRecord]]) -
     paper = paper_table(table.task)
     if paper is None or paper.metric != table.metric:
         return None
-    if len({run.config.physics for group in groups.values() for run in group}) > 1:
+    if len(simulated_physics(run for group in groups.values() for run in group)) > 1:
         return None
     scores = {name: [float(run.final[table.metric]) for run in group] for name, group in groups.items()}
     cells = []

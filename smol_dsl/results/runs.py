@@ -101,6 +101,12 @@ def load_runs(paths: Sequence[str | Path], allow_mixed_environments: bool = Fals
     return {name: sorted(groups[name], key=lambda r: r.seed) for name in ordered}
 
 
+def simulated_physics(runs: Iterable[RunRecord]) -> list[str]:
+    """The physics the runs were simulated on, in the order of `PHYSICS_NAMES`."""
+    used = {run.config.physics for run in runs}
+    return [name for name in PHYSICS_NAMES if name in used]
+
+
 def condition_name(run: RunRecord, several_physics: bool) -> str:
     """What a report calls the condition of a run: its schedule's name, and where the runs
     reported on were simulated on several physics, the run's physics too (`SMOL on mjx`)."""
@@ -221,7 +227,7 @@ def environment_mixing(runs: Sequence[RunRecord]) -> list[str]:
 def _group_by_condition(runs: Sequence[RunRecord]) -> dict[str, list[RunRecord]]:
     """The runs by condition (`condition_name`), in the order given; refuses (ReportError)
     two schedules with one name and a run whose condition and seed another run has already."""
-    several_physics = len({run.config.physics for run in runs}) > 1
+    several_physics = len(simulated_physics(runs)) > 1
     groups: dict[str, list[RunRecord]] = {}
     named: dict[str, RunRecord] = {}  # the first run of each schedule name, on any physics
     for run in runs:
@@ -254,8 +260,7 @@ def _check_new_seed(group: Sequence[RunRecord], run: RunRecord) -> None:
         )
         raise ReportError(
             f"{run.schedule} on {run.config.physics}: {same} ({twin.directory} and {run.directory}); each run "
-            "must count once: "
-            "leave one of them out"
+            "must count once: leave one of them out"
         )
 
 
@@ -315,7 +320,7 @@ def runs_described(groups: Mapping[str, Sequence[RunRecord]]) -> list[tuple[str,
     runs = [run for group in groups.values() for run in group]
     config = runs[0].config
     seeds = sorted({run.seed for run in runs})
-    simulated = [name for name in PHYSICS_NAMES if any(run.config.physics == name for run in runs)]
+    simulated = simulated_physics(runs)
     physics = " and ".join(simulated)
     schedules = counted(len({run.schedule for run in runs}), "schedule") + (
         f" on {physics}" if len(simulated) > 1 else ""

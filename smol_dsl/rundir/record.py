@@ -183,6 +183,11 @@ class RunRecord:
             return trained_bodies(values, schedule.channels, self.rows)
         return np.asarray(values, dtype=np.float32)
 
+    def last_phase_body(self) -> dict[Channel, float]:
+        """The body the run ended on: its last phase's factor per channel (`phase_bodies`); `final_body`
+        holds only the declared `final` factors."""
+        return dict(zip(self.channels, self.phase_bodies()[-1].tolist(), strict=True))
+
     def final_archive(self) -> FinalArchive:
         """The final archive, read (and checked) if it was not."""
         return self.archive if self.archive is not None else read_final_archive(self.directory, self.config)

@@ -150,12 +150,11 @@ def known_hang(plan: TrainingPlan) -> str | None:
         and plan.footprint.parallel_runs > 1
         and jaxlib_version() < MJX_CPU_HANG_FIXED
     ):
-        fixed = ".".join(str(part) for part in MJX_CPU_HANG_FIXED)
+        installed, fixed = (".".join(map(str, version)) for version in (jaxlib_version(), MJX_CPU_HANG_FIXED))
         return (
-            f"MJX on a CPU with several runs per step hangs under jaxlib {'.'.join(map(str, jaxlib_version()))}: its "
-            "batched Cholesky waits on XLA:CPU threads that other Cholesky calls hold (docs/scaling.md, 'A known "
-            f"hang'); if the progress stops with the CPU idle, use the default, one run at a time, or jax {fixed} "
-            "or later (Python 3.12 and later)"
+            f"MJX on a CPU with several runs per step hangs under jaxlib {installed}: its batched Cholesky waits on "
+            "XLA:CPU threads that other Cholesky calls hold (docs/scaling.md, 'A known hang'); if the progress stops "
+            f"with the CPU idle, use the default, one run at a time, or jax {fixed} or later (Python 3.12 and later)"
         )
     return None
 
