@@ -82,6 +82,7 @@ def test_the_child_and_the_adult_side_by_side_in_one_page(small_run, tmp_path, c
     image = Image.open(io.BytesIO(gif))
     assert image.size[0] == 2 * 320  # two tiles
     assert "phase 0" in page and "final" in page and "gear 0.7" in page  # human starts at 0.7
+    assert "<h1>walker2d on spring under" in page and "final body · spring" in page  # the title and the tiles' labels
 
 
 def test_an_mp4_holds_the_frames_at_the_environment_s_rate(small_run, tmp_path, capsys):

@@ -96,7 +96,7 @@ def render_run(args: argparse.Namespace) -> int:
     gait_video.check_canvas(len(cells), len(bodies), args.size, steps, task_spec(run.task).step_seconds, out.suffix)
     started = time.perf_counter()
     rendered = gaits.render_gaits(run, archive, cells, bodies, replay=replay_elites, steps=args.steps, size=args.size)
-    title = f"{run.task} under {run.schedule}, seed {run.seed}"
+    title = f"{run.task} on {run.config.physics} under {run.schedule}, seed {run.seed}"
     gait_video.write_gaits(out, rendered, title)
     seconds = time.perf_counter() - started
     for gait in rendered:

@@ -1,5 +1,5 @@
 """Gait videos: rendered gaits (`smol_dsl.results.gaits.Gait`) tiled side by side, each
-tile labelled with its cell, body and fitness (several elites, or one elite in several
+tile labelled with its cell, body, physics and fitness (several elites, or one elite in several
 bodies), and written by `write_gaits` as a GIF (Pillow), an MP4 (imageio's bundled ffmpeg,
 the `video` extra) or one self-contained web page (the GIF embedded, no script or style from
 the network). `check_canvas` refuses, before anything is rolled out, a tiling too large for

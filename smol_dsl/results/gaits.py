@@ -72,6 +72,7 @@ class Gait:
     """One elite rolled out in one body: what the tile shows and the figures printed beside it."""
 
     cell: int
+    physics: str  # what simulated it: "spring" or "mjx" (the run's)
     body_label: str  # "final", "phase 3", or "given"
     body: dict[str, float]  # the factor of each of the schedule's channels
     fitness: float  # the replay's, over the run's episode, in this body
@@ -88,9 +89,9 @@ class Gait:
 
     @property
     def label_lines(self) -> tuple[str, str]:
-        """The tile's label: the elite and its body; the factors and its fitness."""
+        """The tile's label: the elite, its body and the physics; the factors and its fitness."""
         factors = ", ".join(f"{name} {value:.3g}" for name, value in self.body.items())
-        return f"cell {self.cell} · {self.body_label} body", f"{factors} · fitness {self.fitness:.2f}"
+        return f"cell {self.cell} · {self.body_label} body · {self.physics}", f"{factors} · fitness {self.fitness:.2f}"
 
 
 def gl_backend() -> str:
@@ -267,6 +268,7 @@ def render_gaits(
                 gaits.append(
                     Gait(
                         cell=int(cell),
+                        physics=run.config.physics,
                         body_label=label,
                         body=body,
                         fitness=rollout.fitness,
