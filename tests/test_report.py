@@ -26,7 +26,7 @@ import smol_dsl
 from smol_dsl.cli import main
 from smol_dsl.results.report import REPORT_FILES, ROBUSTNESS_REPORT_FILES, write_report
 from smol_dsl.results.runs import ReportError, load_runs
-from smol_dsl.results.statistics import pvalue_table
+from smol_dsl.results.statistics import holm, pvalue_table
 from smol_dsl.rundir import MetricsLog, read_metrics
 from smol_dsl.rundir import files as rundir_files
 
@@ -164,6 +164,25 @@ def test_report_writes_table_scores_and_figures(synthetic, tmp_path):
         rows = list(csv.DictReader(file))
     assert len(rows) == 16
     assert {float(r["max_fitness"]) for r in rows if r["schedule"] == "SMOL"} == set(SCORES["smol"])
+
+
+def test_the_report_s_table_gives_holm_beside_each_p_and_the_paper_comparison_the_raw_p(synthetic, tmp_path):
+    raw = pvalue_table(load_runs([synthetic]))
+    cells = raw.cells()
+    adjusted = dict(zip(cells, holm([raw.pvalues[row][column] for row, column in cells]), strict=True))
+    write_report([synthetic], tmp_path / "out")
+    table = (tmp_path / "out" / "table.md").read_text()
+    assert len(cells) == 9  # 4 schedules x 3 curricula, less the diagonal
+    assert f"Holm-adjusted value over the table's {len(cells)} tests" in table
+    vanilla = next(line for line in table.splitlines() if line.startswith("| Vanilla"))
+    holm_vanilla = adjusted["Vanilla MAP-Elites", "SMOL"]
+    assert f"1.429e-02 (Holm {holm_vanilla:.3e})" in vanilla and holm_vanilla > 0.05  # 1/70, not after adjusting
+    assert "**1.429e-02" not in vanilla  # bold only where the adjusted p is below 0.05
+    for row, column in cells:
+        assert f"{raw.pvalues[row][column]:.3e} (Holm {adjusted[row, column]:.3e})" in table
+    assert "(Holm" in (tmp_path / "out" / "pvalues.tex").read_text()
+    assert "(Holm" in (tmp_path / "out" / "index.html").read_text()
+    assert "Holm" not in (tmp_path / "out" / "paper-comparison.md").read_text()  # the paper's p are raw, as ours there
 
 
 def test_runs_that_count_their_reevaluations_get_a_reevaluation_figure(tmp_path, library):

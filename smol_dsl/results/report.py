@@ -1,6 +1,7 @@
 """The report's files: `write_report(paths, out_dir)` reads and checks the runs
-(`smol_dsl.results.runs.load_runs`), makes the U-test table (`smol_dsl.results.statistics`)
-and compares it with the paper's (`smol_dsl.results.paper`), and writes table.md,
+(`smol_dsl.results.runs.load_runs`), makes the U-test table, Holm's adjustment beside each
+p (`smol_dsl.results.statistics`), and compares its raw p-values with the paper's
+(`smol_dsl.results.paper`), and writes table.md,
 pvalues.tex, scores.csv, the figures (`smol_dsl.results.report_figures`), the gaits and index.html
 (`smol_dsl.results.page`): everything is read and drawn before the first file is written,
 the files are written together and atomically, and an earlier report is replaced only with
@@ -131,7 +132,8 @@ def render_report(
     label = METRICS_SCHEMA[table.metric].axis_label
     caption = (
         f"{table.task} ({label}): median final scores and p-values of one-sided Mann-Whitney U tests, with "
-        f"the alternative that the column schedule is better than the row schedule; p < {SIGNIFICANCE} in bold."
+        "the alternative that the column schedule is better than the row schedule; beside each p its "
+        f"Holm-adjusted value over the table's {len(table.cells())} tests, in bold where that is below {SIGNIFICANCE}."
     )
     described = runs_described(groups)
     what_ran = "\n".join(f"- **{heading}**: {markdown_escape(text)}" for heading, text in described)
@@ -290,7 +292,7 @@ def write_report(
         raise ValueError("rendering gaits needs `replay`: give replay=smol_dsl.rescoring.replay.replay_elites")
     earlier = check_output_directory(out_dir, force)
     groups = load_runs(paths, allow_mixed_environments)
-    table = pvalue_table(groups, metric)
+    table = pvalue_table(groups, metric).holm_adjusted()  # many tests: Holm beside each p
     comparison = compare_with_paper(table, groups)
     measured = robustness_files_of(paths, robustness)
     robust = robustness_for_report(measured, groups, table.task) if measured else None

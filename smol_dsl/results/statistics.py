@@ -65,6 +65,10 @@ class PValueTable:
         table = {row: {column: adjusted.get((row, column)) for column in self.columns} for row in self.rows}
         return replace(self, adjusted=table)
 
+    def holm_adjusted(self) -> PValueTable:
+        """The table with each p's Holm-adjusted value (`holm`) over all of its tests beside it."""
+        return adjusted_tables({"table": self})["table"]
+
     def notes(self) -> list[str]:
         """Warnings about the table's power: with few runs no p-value can fall below 0.05.
         One note per test and pair of run counts, naming the pairs it concerns (or saying all do)."""
