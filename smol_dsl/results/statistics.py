@@ -47,6 +47,7 @@ class PValueTable:
     pvalues: dict[str, dict[str, float | None]]
     tests: dict[str, dict[str, str]] = field(default_factory=dict)  # per cell U_TEST (default) or WILCOXON
     adjusted: dict[str, dict[str, float | None]] | None = None  # Holm-adjusted p-values, where given
+    family: int = 0  # how many tests the adjustment was over (this table's and any read with it)
 
     def test(self, row: str, column: str) -> str:
         """The test of a cell: U_TEST, or WILCOXON where `paired_table` paired the runs by seed."""
@@ -60,10 +61,11 @@ class PValueTable:
         """The (row, column) pairs that hold a p-value, row by row."""
         return [(row, column) for row in self.rows for column in self.columns if self.pvalues[row][column] is not None]
 
-    def with_adjusted(self, adjusted: Mapping[tuple[str, str], float]) -> PValueTable:
-        """The table with adjusted p-values (by cell) shown beside the raw ones; bold marks them."""
+    def with_adjusted(self, adjusted: Mapping[tuple[str, str], float], family: int) -> PValueTable:
+        """The table with adjusted p-values (by cell) shown beside the raw ones; bold marks them.
+        `family`: how many tests they were adjusted over."""
         table = {row: {column: adjusted.get((row, column)) for column in self.columns} for row in self.rows}
-        return replace(self, adjusted=table)
+        return replace(self, adjusted=table, family=family)
 
     def holm_adjusted(self) -> PValueTable:
         """The table with each p's Holm-adjusted value (`holm`) over all of its tests beside it."""
@@ -94,7 +96,22 @@ class PValueTable:
                 f"{'it cannot' if len(names) == 1 else 'none can'} reach p < {SIGNIFICANCE}; run more seeds (the paper "
                 "used 7 to 10)"
             )
+        if self.adjusted is not None:
+            notes += self._adjustment_notes()
         return notes
+
+    def _adjustment_notes(self) -> list[str]:
+        """A note where some raw p could reach significance but no adjusted one can: Holm
+        multiplies the family's smallest p by the number of tests."""
+        smallest = [self.smallest_possible(row, column) for row, column in self.cells()]
+        reachable = [p for p in smallest if p < SIGNIFICANCE]
+        if not reachable or self.family * min(reachable) < SIGNIFICANCE:
+            return []
+        return [
+            f"Holm's adjustment over {counted(self.family, 'test')} multiplies the smallest p-value by "
+            f"{self.family}: with these runs no adjusted p-value can be below {SIGNIFICANCE} (the smallest possible "
+            f"is {min(1.0, self.family * min(reachable)):.3g}); run more seeds, or compare fewer schedules"
+        ]
 
     @property
     def best(self) -> set[str]:
@@ -188,7 +205,7 @@ def adjusted_tables(tables: Mapping[Key, PValueTable]) -> dict[Key, PValueTable]
     raw = [_finite_p(tables[name].pvalues[row][column]) for name, (row, column) in cells]
     adjusted = dict(zip(cells, holm(raw), strict=True))
     return {
-        name: table.with_adjusted({cell: adjusted[name, cell] for cell in table.cells()})
+        name: table.with_adjusted({cell: adjusted[name, cell] for cell in table.cells()}, len(cells))
         for name, table in tables.items()
     }
 
