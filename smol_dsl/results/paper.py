@@ -135,9 +135,9 @@ class Comparison:
         text = (
             f"Of the {len(self.cells)} p-values of the paper's {self.paper.task} table that these runs can "
             f"reproduce, {counted(compared, 'was', 'were')} compared: {counts['agrees']} agree (same direction, "
-            f"both significant at "
-            f"{SIGNIFICANCE}), {counts['same direction']} go the same direction (not significant in one or both), "
-            f"and {counts['disagrees']} disagree (opposite directions)."
+            f"both significant at {SIGNIFICANCE}), {counts['same direction']} go the same direction (not significant "
+            f"in one or both), and {counts['disagrees']} disagree (opposite directions). Both sides' p-values are "
+            "raw, unadjusted for the table's many tests, as the paper gives them."
         )
         if counts["not comparable"]:
             text += f" {counts['not comparable']} could not be computed (too few runs)."
