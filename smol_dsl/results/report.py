@@ -133,7 +133,7 @@ def render_report(
     caption = (
         f"{table.task} ({label}): median final scores and p-values of one-sided Mann-Whitney U tests, with "
         "the alternative that the column schedule is better than the row schedule; beside each p its "
-        f"Holm-adjusted value over the table's {len(table.cells())} tests, in bold where that is below {SIGNIFICANCE}."
+        f"Holm-adjusted value over the table's {table.family} tests, in bold where that is below {SIGNIFICANCE}."
     )
     described = runs_described(groups)
     what_ran = "\n".join(f"- **{heading}**: {markdown_escape(text)}" for heading, text in described)
